@@ -1,0 +1,32 @@
+"""``gltrack info``: what GL context gltrack gets here."""
+import json
+
+NAME = "info"
+HELP = "report the GL backend, renderer, version, limits and the reduction the engine will use"
+
+
+def add_arguments(p):
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--backend", default="auto", choices=["auto", "egl", "osmesa"],
+                   help="GL backend (GLTRACK_GL_BACKEND overrides)")
+    p.add_argument("--device", type=int, default=None, help="EGL device index (GLTRACK_EGL_DEVICE overrides)")
+
+
+def run(args):
+    from gltrack.gl.context import capabilities, create_context
+
+    ctx = create_context(args.backend, args.device)
+    info = capabilities(ctx).as_dict()
+    try:
+        from gltrack.render.engine import choose_reduction
+
+        info["reduction"] = choose_reduction(ctx)
+    except ImportError:
+        pass
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        for k, v in info.items():
+            print(f"{k:18s} {v}")
+    ctx.release()
+    return 0

@@ -1,0 +1,144 @@
+"""Headless OpenGL context creation: the one way in.
+
+``create_context()`` is the only function in gltrack that makes a GL context. The backend is
+chosen by argument or by the environment (``GLTRACK_GL_BACKEND``, ``GLTRACK_EGL_DEVICE``), the
+environment winning, as glcontext's ``GLCONTEXT_*`` variables do:
+
+* ``"auto"`` (default): EGL through moderngl/glcontext, then OSMesa (PyOpenGL's OSMesa binding
+  with ``moderngl.create_context()`` on the current context). x11 is never tried implicitly.
+* ``"egl"``: EGL only (device index from ``device`` or ``GLTRACK_EGL_DEVICE``).
+* ``"osmesa"``: OSMesa only.
+
+OpenGL 3.3 core is required; 4.3 features (compute shaders, SSBOs) are reported by
+:func:`capabilities` and used by the renderer when present.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import asdict, dataclass
+
+import moderngl
+
+log = logging.getLogger(__name__)
+
+REQUIRED_VERSION = 330
+SYSTEM_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgl1"
+
+
+class GLContextError(RuntimeError):
+    """No usable OpenGL >= 3.3 context could be created."""
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What the context offers; see ``gltrack info``."""
+
+    backend: str
+    vendor: str
+    renderer: str
+    version: str
+    version_code: int
+    max_texture_size: int
+    compute: bool
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _egl(device: int | None) -> moderngl.Context:
+    kwargs = {"standalone": True, "backend": "egl", "require": REQUIRED_VERSION}
+    if device is not None:
+        kwargs["device_index"] = int(device)
+    return moderngl.create_context(**kwargs)
+
+
+def _osmesa(width: int = 1, height: int = 1) -> moderngl.Context:
+    # PyOpenGL needs the platform chosen before its first import.
+    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+    import ctypes
+
+    from OpenGL import GL, arrays  # noqa: F401  (loads the platform)
+    from OpenGL import osmesa
+
+    ctx = osmesa.OSMesaCreateContextAttribs(
+        [osmesa.OSMESA_FORMAT, osmesa.OSMESA_RGBA, osmesa.OSMESA_DEPTH_BITS, 24,
+         osmesa.OSMESA_PROFILE, osmesa.OSMESA_CORE_PROFILE,
+         osmesa.OSMESA_CONTEXT_MAJOR_VERSION, 3, osmesa.OSMESA_CONTEXT_MINOR_VERSION, 3, 0],
+        None,
+    )
+    if not ctx:
+        raise RuntimeError("OSMesaCreateContextAttribs returned NULL")
+    buf = arrays.GLubyteArray.zeros((height, width, 4))
+    if not osmesa.OSMesaMakeCurrent(ctx, buf, GL.GL_UNSIGNED_BYTE, width, height):
+        raise RuntimeError("OSMesaMakeCurrent failed")
+    gl = moderngl.create_context(require=REQUIRED_VERSION)
+    gl._gltrack_keepalive = (ctx, buf, ctypes)  # the buffer must outlive the context
+    return gl
+
+
+def create_context(backend: str = "auto", device: int | None = None) -> moderngl.Context:
+    """Create a headless OpenGL >= 3.3 core context.
+
+    Parameters
+    ----------
+    backend : {"auto", "egl", "osmesa"}
+        Overridden by the environment variable ``GLTRACK_GL_BACKEND`` when set.
+    device : int, optional
+        EGL device index; overridden by ``GLTRACK_EGL_DEVICE`` when set.
+
+    Returns
+    -------
+    moderngl.Context
+        With the attribute ``gltrack_backend`` naming the backend that worked.
+
+    Raises
+    ------
+    GLContextError
+        Naming every backend tried, why it failed, and what to install.
+    """
+    backend = os.environ.get("GLTRACK_GL_BACKEND", backend).lower()
+    env_dev = os.environ.get("GLTRACK_EGL_DEVICE")
+    if env_dev not in (None, ""):
+        try:
+            device = int(env_dev)
+        except ValueError:
+            raise GLContextError(f"GLTRACK_EGL_DEVICE must be an integer, got {env_dev!r}") from None
+    order = {"auto": ["egl", "osmesa"], "egl": ["egl"], "osmesa": ["osmesa"]}.get(backend)
+    if order is None:
+        raise GLContextError(f"unknown GL backend {backend!r}; use auto, egl or osmesa")
+    errors = []
+    for name in order:
+        try:
+            ctx = _egl(device) if name == "egl" else _osmesa()
+        except Exception as exc:  # every failure is reported together below
+            errors.append(f"{name}: {type(exc).__name__}: {exc}")
+            log.debug("GL backend %s failed: %s", name, exc)
+            continue
+        if ctx.version_code < REQUIRED_VERSION:
+            errors.append(f"{name}: OpenGL {ctx.version_code} < 3.3")
+            ctx.release()
+            continue
+        ctx.gltrack_backend = name
+        log.info("GL context: %s, %s", name, ctx.info.get("GL_RENDERER"))
+        return ctx
+    raise GLContextError(
+        "could not create an OpenGL >= 3.3 core context. Tried "
+        + "; ".join(errors)
+        + f". Fix: install the Mesa EGL libraries (Debian/Ubuntu: apt-get install {SYSTEM_PACKAGES}),"
+        " or select a GPU with GLTRACK_EGL_DEVICE=N."
+    )
+
+
+def capabilities(ctx: moderngl.Context) -> Capabilities:
+    """Describe ``ctx``: vendor, renderer, version, texture limit, compute support."""
+    info = ctx.info
+    return Capabilities(
+        backend=getattr(ctx, "gltrack_backend", "external"),
+        vendor=str(info.get("GL_VENDOR", "")),
+        renderer=str(info.get("GL_RENDERER", "")),
+        version=str(info.get("GL_VERSION", "")),
+        version_code=int(ctx.version_code),
+        max_texture_size=int(info.get("GL_MAX_TEXTURE_SIZE", 0)),
+        compute=ctx.version_code >= 430,
+    )
