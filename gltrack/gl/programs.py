@@ -44,18 +44,20 @@ def find_shader(name: str, search_path=()) -> Path:
     raise ShaderError(f"shader file {name!r} not found in: {', '.join(tried)}")
 
 
-def load_source(name: str, defines: dict | None = None, search_path=()) -> str:
+def load_source(name: str, defines: dict | None = None, search_path=(), aliases=None) -> str:
     """Read a shader, expand ``#include "file"`` lines and insert ``#define``s after ``#version``.
 
     Included files are marked with ``#line`` directives so compiler logs point into the right
-    file (numbered in the order listed in the returned source's comment header).
+    file (numbered in the order listed in the returned source's comment header). ``aliases`` maps
+    an include name to the file actually read (how a user's custom cost replaces a stock include).
     """
+    aliases = dict(aliases or {})
     files: list[str] = []
 
     def expand(fname: str, depth: int) -> list[str]:
         if depth > 8:
             raise ShaderError(f"#include nesting too deep at {fname}")
-        path = find_shader(fname, search_path)
+        path = find_shader(aliases.get(fname, fname), search_path)
         files.append(str(path))
         idx = len(files) - 1
         out = []
@@ -87,18 +89,19 @@ class ProgramCache:
         self._cache: dict = {}
 
     def get(self, *, vertex=None, fragment=None, compute=None, defines=None,
-            varyings=None):
+            varyings=None, aliases=None):
         """Return a compiled ``moderngl.Program`` (or ``ComputeShader`` if ``compute``)."""
-        key = (vertex, fragment, compute, tuple(sorted((defines or {}).items())))
+        key = (vertex, fragment, compute, tuple(sorted((defines or {}).items())),
+               tuple(sorted((aliases or {}).items())))
         if key in self._cache:
             return self._cache[key]
         try:
             if compute is not None:
-                src = load_source(compute, defines, self.search_path)
+                src = load_source(compute, defines, self.search_path, aliases)
                 prog = self.ctx.compute_shader(src)
             else:
-                vs = load_source(vertex, defines, self.search_path)
-                fs = load_source(fragment, defines, self.search_path) if fragment else None
+                vs = load_source(vertex, defines, self.search_path, aliases)
+                fs = load_source(fragment, defines, self.search_path, aliases) if fragment else None
                 prog = self.ctx.program(vertex_shader=vs, fragment_shader=fs, varyings=varyings or ())
         except moderngl.Error as exc:
             names = ", ".join(n for n in (vertex, fragment, compute) if n)

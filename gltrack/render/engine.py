@@ -1,0 +1,518 @@
+"""The tiled candidate-scoring engine (Ganapathi et al. 2010, sec. "GPU-accelerated implementation").
+
+Per frame the observations are uploaded once (:meth:`ScoringEngine.set_depth`, ``set_masks``,
+``set_appearance``). Per batch only the candidates' skinning matrices go up and only
+``N x C x K`` floats come back:
+
+1. the skinning matrices of all candidates go into one RGBA32F texture (3 texels per bone);
+2. one instanced draw per camera renders candidate ``i`` into tile ``i`` of a power-of-two grid
+   (``shaders/skin.vert``; each tile clipped by ``gl_ClipDistance`` so nothing bleeds), writing
+   metric depth and triangle id (``shaders/model.frag``);
+3. the per-pixel costs of ``shaders/costs.glsl`` are reduced to one sum per tile and channel,
+   either by a full-screen cost pass plus the mipmap chain (the paper's method,
+   ``shaders/cost.frag``) or by one compute work group per tile (``shaders/reduce.comp``, GL 4.3+).
+
+Channels (K = 4, always in this order): ``depth`` (sum of Ganapathi's smoothstep cost),
+``silhouette`` (Bandouch's XOR pixel count outside the blocking mask), ``appearance`` (count of
+colour-consistent pixels) and ``custom`` (a user-supplied GLSL cost, see :class:`CustomCost`).
+
+Tiles are square with a power-of-two side; observations are resampled to the tile (nearest
+neighbour, so depths are never blended across silhouettes) and each camera's intrinsics are scaled
+to match (:meth:`gltrack.camera.Camera.scaled`). Cameras are rendered undistorted: observations must
+be undistorted before they are handed over.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import cv2
+import moderngl
+import numpy as np
+
+from gltrack.body.mesh import BodyMesh
+from gltrack.gl.programs import ProgramCache
+
+log = logging.getLogger(__name__)
+
+CHANNELS = ("depth", "silhouette", "appearance", "custom")
+_GL_CLIP_DISTANCE0 = 0x3000
+_TRI_BITS_WIDTH = 1024
+
+
+@dataclass(frozen=True)
+class DepthCostParams:
+    """Parameters of the per-pixel depth cost (all documented in ``shaders/costs.glsl``).
+
+    scale : float, metres
+        Depth difference at which the smoothstep saturates (cost 1). 0.15 m: the ToF noise plus the
+        model's shape error (about 2-5 cm each) sit well inside the quadratic part.
+    c_model_only : float
+        Cost of a pixel where the model is and nothing was observed (equals saturation: the model
+        claims surface where the sensor saw none).
+    c_obs_only : float
+        Cost of an observed foreground pixel the model does not explain.
+    penalty : float
+        Smoothed likelihood's cost of matching a neighbouring pixel: ~3 (d/scale)^2 for the
+        ~1.3 cm a pixel spans at 2 m for a 128-px SR4000 crop.
+    smooth : bool
+        Use Ganapathi's smoothed likelihood (best of the 3x3 neighbourhood plus penalty).
+    """
+
+    scale: float = 0.15
+    c_model_only: float = 1.0
+    c_obs_only: float = 1.0
+    penalty: float = 0.02
+    smooth: bool = False
+
+    def as_vec4(self):
+        return (float(self.scale), float(self.c_model_only), float(self.c_obs_only), float(self.penalty))
+
+
+@dataclass(frozen=True)
+class CustomCost:
+    """A user's per-pixel cost in GLSL, summed into channel ``custom``.
+
+    The file must define ``float custom_cost(ivec2 pixel, ivec2 local)`` where ``pixel`` is the
+    texel in the grid textures (``model_z``, ``model_tri``) and ``local`` the texel in the
+    tile-sized observation textures (``obs_z``, ``obs_mask``, ``obs_bits``); it may call
+    ``depth_pixel(zo, zm)`` and read ``depth_params``, ``tile`` (see ``shaders/costs.glsl``).
+    Test it against a CPU twin the same way the stock costs are tested (examples/05).
+    """
+
+    path: str
+
+
+def _grid_for(n: int, max_tiles_side: int) -> tuple[int, int]:
+    """Smallest power-of-two (cols, rows) grid with cols in {rows, 2 rows} holding n tiles."""
+    cols = rows = 1
+    while cols * rows < n:
+        if cols == rows:
+            cols *= 2
+        else:
+            rows *= 2
+    if cols > max_tiles_side or rows > max_tiles_side:
+        raise ValueError(f"{n} candidates do not fit one {max_tiles_side}x{max_tiles_side}-tile batch")
+    return cols, rows
+
+
+class _View:
+    """One camera at tile resolution and its uploaded observations."""
+
+    def __init__(self, camera, tile):
+        self.camera = camera
+        self.cam_tile = camera.scaled(tile, tile)
+        self.view = np.asarray(self.cam_tile.gl_view(), dtype=np.float32)
+        self.obs_z = None
+        self.obs_mask = None
+        self.obs_bits = None
+        self.tri_bits = None
+
+
+class ScoringEngine:
+    """Score N candidate poses of a skinned mesh against C camera observations on the GPU.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+        From :func:`gltrack.gl.context.create_context`.
+    mesh : BodyMesh
+    n_bones : int
+        Number of bones B of the skinning matrices passed to :meth:`score`.
+    cameras : list of gltrack.camera.Camera
+    tile : int
+        Tile side in pixels, a power of two (16..512). Observations are resampled to it.
+    max_texture : int
+        Largest grid texture side; batches are chunked so the grid fits (memory stays bounded:
+        about 4 textures of this size per camera). Clamped to GL_MAX_TEXTURE_SIZE.
+    reduction : {"auto", "mipmap", "compute"}
+        "auto" times both on the first batch and keeps the faster (compute needs GL 4.3).
+    depth_params : DepthCostParams
+    custom : CustomCost, optional
+    near, far : float, metres
+        Clip planes.
+    """
+
+    def __init__(self, ctx: moderngl.Context, mesh: BodyMesh, n_bones: int, cameras, *, tile: int = 64,
+                 max_texture: int = 2048, reduction: str = "auto",
+                 depth_params: DepthCostParams = DepthCostParams(), custom: CustomCost | None = None,
+                 near: float = 0.05, far: float = 50.0, programs: ProgramCache | None = None):
+        if tile < 16 or tile > 512 or tile & (tile - 1):
+            raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
+        if reduction not in ("auto", "mipmap", "compute"):
+            raise ValueError(f"reduction must be auto, mipmap or compute, got {reduction!r}")
+        if reduction == "compute" and ctx.version_code < 430:
+            raise ValueError("compute reduction needs OpenGL 4.3; this context is "
+                             f"{ctx.version_code}")
+        if not cameras:
+            raise ValueError("at least one camera is needed")
+        if mesh.joints.max() >= n_bones:
+            raise ValueError(f"mesh references bone {mesh.joints.max()} but n_bones={n_bones}")
+        self.ctx = ctx
+        self.mesh = mesh
+        self.n_bones = int(n_bones)
+        self.tile = int(tile)
+        self.depth_params = depth_params
+        self.custom = custom
+        self.near, self.far = float(near), float(far)
+        limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096))
+        side = min(int(max_texture), limit)
+        self.max_tiles_side = max(1, 1 << int(np.log2(max(side // self.tile, 1))))
+        self.max_batch = self.max_tiles_side * self.max_tiles_side
+        self.reduction = reduction if reduction != "auto" or ctx.version_code >= 430 else "mipmap"
+        self._auto_pending = reduction == "auto" and ctx.version_code >= 430
+        self.programs = programs or ProgramCache(ctx)
+        self._owns_programs = programs is None
+        self.views = [_View(c, self.tile) for c in cameras]
+        self.evaluations = 0
+        self._released = False
+        self._targets: dict = {}
+        self._build_geometry()
+
+    # ----------------------------------------------------------------------------------- setup
+    def _build_geometry(self):
+        ctx, m = self.ctx, self.mesh
+        self._vbo_pos = ctx.buffer(m.vertices.astype("f4").tobytes())
+        self._vbo_j = ctx.buffer(m.joints.astype("i4").tobytes())
+        self._vbo_w = ctx.buffer(m.weights.astype("f4").tobytes())
+        self._ibo = ctx.buffer(m.faces.astype("i4").tobytes())
+        self._prog_model = self.programs.get(vertex="skin.vert", fragment="model.frag")
+        self._vao = ctx.vertex_array(
+            self._prog_model,
+            [(self._vbo_pos, "3f", "in_pos"), (self._vbo_j, "4i", "in_joints"),
+             (self._vbo_w, "4f", "in_weights")],
+            index_buffer=self._ibo, index_element_size=4)
+        self._prog_fs = None
+        self._vao_fs = None
+
+    def _defines(self, channels):
+        d = {}
+        if "depth" in channels:
+            d["CH_DEPTH_SMOOTH" if self.depth_params.smooth else "CH_DEPTH"] = 1
+        if "silhouette" in channels:
+            d["CH_SILHOUETTE"] = 1
+        if "appearance" in channels:
+            d["CH_APPEARANCE"] = 1
+        if "custom" in channels:
+            d["CH_CUSTOM"] = 1
+        return d
+
+    def _aliases(self):
+        return {"custom_cost.glsl": self.custom.path} if self.custom else None
+
+    def _target(self, cols, rows):
+        """Render targets for a grid, cached by grid size."""
+        key = (cols, rows)
+        if key in self._targets:
+            return self._targets[key]
+        ctx, W, H = self.ctx, cols * self.tile, rows * self.tile
+        z = ctx.texture((W, H), 1, dtype="f4")
+        tri = ctx.texture((W, H), 1, dtype="i4")
+        for t in (z, tri):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        depth = ctx.depth_renderbuffer((W, H))
+        fbo = ctx.framebuffer(color_attachments=[z, tri], depth_attachment=depth)
+        levels = int(np.log2(self.tile))
+        cost = ctx.texture((W, H), 4, dtype="f4")
+        cost.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.NEAREST)
+        cost_fbo = ctx.framebuffer(color_attachments=[cost])
+        bones = ctx.texture((3 * self.n_bones, cols * rows), 4, dtype="f4")
+        bones.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        sums = ctx.buffer(reserve=cols * rows * 16) if ctx.version_code >= 430 else None
+        t = dict(z=z, tri=tri, depth=depth, fbo=fbo, cost=cost, cost_fbo=cost_fbo, bones=bones,
+                 sums=sums, levels=levels, W=W, H=H)
+        # Keep at most two grid sizes alive: memory stays bounded whatever batch sizes come.
+        if len(self._targets) >= 2:
+            old_key = next(iter(self._targets))
+            self._release_target(self._targets.pop(old_key))
+        self._targets[key] = t
+        return t
+
+    @staticmethod
+    def _release_target(t):
+        for k in ("fbo", "cost_fbo", "z", "tri", "depth", "cost", "bones", "sums"):
+            if t.get(k) is not None:
+                t[k].release()
+
+    # ----------------------------------------------------------------------------- observations
+    def _check_view(self, cam):
+        if not 0 <= cam < len(self.views):
+            raise ValueError(f"camera index {cam} out of range (engine has {len(self.views)} cameras)")
+        return self.views[cam]
+
+    def _check_size(self, v, arr, what):
+        h, w = v.camera.height, v.camera.width
+        if arr.shape[:2] != (h, w):
+            raise ValueError(f"{what} for camera {v.camera.name!r} has size {arr.shape[1]}x{arr.shape[0]},"
+                             f" the camera is {w}x{h}")
+
+    def _to_tile(self, img):
+        return cv2.resize(img, (self.tile, self.tile), interpolation=cv2.INTER_NEAREST)
+
+    def _upload(self, old, data, components, dtype):
+        if old is not None:
+            old.release()
+        tex = self.ctx.texture((data.shape[1], data.shape[0]), components, data.tobytes(), dtype=dtype)
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return tex
+
+    def set_depth(self, cam: int, depth):
+        """Upload an observed depth image.
+
+        Parameters
+        ----------
+        cam : int, camera index
+        depth : (H, W) float, metres at the camera's resolution; 0 (or non-finite) = no observation
+        """
+        v = self._check_view(cam)
+        z = np.asarray(depth, dtype=np.float32)
+        if z.ndim != 2:
+            raise ValueError(f"depth must be a 2-D image, got shape {z.shape}")
+        self._check_size(v, z, "depth")
+        z = np.where(np.isfinite(z) & (z > 0), z, 0).astype(np.float32)
+        v.obs_z = self._upload(v.obs_z, np.ascontiguousarray(self._to_tile(z)), 1, "f4")
+
+    def set_masks(self, cam: int, foreground, blocking=None):
+        """Upload a foreground mask and an optional blocking mask (True = ignore the pixel).
+
+        Parameters
+        ----------
+        foreground, blocking : (H, W) bool (or uint8, non-zero = True) at the camera's resolution
+        """
+        v = self._check_view(cam)
+        fg = np.asarray(foreground)
+        self._check_size(v, fg, "foreground mask")
+        bl = np.zeros_like(fg, dtype=bool) if blocking is None else np.asarray(blocking)
+        self._check_size(v, bl, "blocking mask")
+        rg = np.stack([fg != 0, bl != 0], axis=-1).astype(np.float32)
+        v.obs_mask = self._upload(v.obs_mask, np.ascontiguousarray(self._to_tile(rg)), 2, "f4")
+
+    def set_appearance(self, cam: int, obs_bits, tri_bits):
+        """Upload observed HLS bitmasks and the triangles' colour-cluster bitmasks.
+
+        Parameters
+        ----------
+        obs_bits : (H, W, 3) uint32, the hue/lightness/saturation bitmasks of each observed pixel
+        tri_bits : (F, 3) uint32, the bitmasks of the colour cluster of each mesh triangle
+        """
+        v = self._check_view(cam)
+        ob = np.asarray(obs_bits)
+        if ob.ndim != 3 or ob.shape[2] != 3 or ob.dtype != np.uint32:
+            raise ValueError(f"obs_bits must be (H, W, 3) uint32, got {ob.shape} {ob.dtype}")
+        self._check_size(v, ob, "obs_bits")
+        tb = np.asarray(tri_bits)
+        if tb.shape != (self.mesh.n_faces, 3) or tb.dtype != np.uint32:
+            raise ValueError(f"tri_bits must be ({self.mesh.n_faces}, 3) uint32, got {tb.shape} {tb.dtype}")
+        tiled = np.ascontiguousarray(self._to_tile(ob.view(np.float32)).view(np.uint32))
+        v.obs_bits = self._upload(v.obs_bits, tiled, 3, "u4")
+        rows = -(-len(tb) // _TRI_BITS_WIDTH)
+        padded = np.zeros((rows * _TRI_BITS_WIDTH, 3), np.uint32)
+        padded[: len(tb)] = tb
+        v.tri_bits = self._upload(v.tri_bits, padded.reshape(rows, _TRI_BITS_WIDTH, 3), 3, "u4")
+
+    # --------------------------------------------------------------------------------- scoring
+    def score(self, skinning, channels=("depth",)) -> np.ndarray:
+        """Score candidates.
+
+        Parameters
+        ----------
+        skinning : (N, B, 3, 4) float, skinning matrices (``Kinematics.skinning_matrices``)
+        channels : sequence of str, subset of ``CHANNELS``
+
+        Returns
+        -------
+        (N, C, 4) float64 per-candidate, per-camera sums of the four channels (channels not
+        requested are 0): depth cost, silhouette XOR count, appearance count, custom cost.
+        """
+        if self._released:
+            raise RuntimeError("ScoringEngine has been released")
+        channels = tuple(channels)
+        bad = [c for c in channels if c not in CHANNELS]
+        if bad or not channels:
+            raise ValueError(f"unknown or empty channels {bad or channels}; choose from {CHANNELS}")
+        if "custom" in channels and self.custom is None:
+            raise ValueError("channel 'custom' needs a CustomCost shader")
+        S = np.asarray(skinning)
+        if S.ndim != 4 or S.shape[1:] != (self.n_bones, 3, 4):
+            raise ValueError(f"skinning must have shape (N, {self.n_bones}, 3, 4), got {S.shape}")
+        if not np.all(np.isfinite(S)):
+            raise ValueError("skinning matrices contain NaN or inf")
+        for v in self.views:
+            need = {"depth": v.obs_z, "silhouette": v.obs_mask, "appearance": v.obs_bits}
+            missing = [c for c in channels if c in need and need[c] is None]
+            if "appearance" in channels and v.obs_mask is None:
+                missing.append("appearance (needs set_masks for the blocking mask)")
+            if missing:
+                raise ValueError(f"camera {v.camera.name!r}: no observation uploaded for {missing}")
+        N = S.shape[0]
+        out = np.zeros((N, len(self.views), 4))
+        S = np.ascontiguousarray(S, dtype=np.float32)
+        for start in range(0, N, self.max_batch):
+            out[start:start + self.max_batch] = self._score_batch(S[start:start + self.max_batch], channels)
+        self.evaluations += N
+        return out
+
+    def _score_batch(self, S, channels):
+        n = S.shape[0]
+        cols, rows = _grid_for(n, self.max_tiles_side)
+        t = self._target(cols, rows)
+        t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
+        if self._auto_pending:
+            self._auto_pending = False
+            self.reduction = self._time_reductions(t, n, cols, rows, channels)
+        res = np.empty((n, len(self.views), 4))
+        for c, v in enumerate(self.views):
+            self._render(t, v, n, cols, rows)
+            res[:, c] = self._reduce(t, v, n, cols, rows, channels, self.reduction)
+        return res
+
+    def _render(self, t, v, n, cols, rows):
+        ctx = self.ctx
+        proj = np.asarray(v.cam_tile.gl_projection(self.near, self.far), dtype=np.float32)
+        prog = self._prog_model
+        t["fbo"].use()
+        t["fbo"].viewport = (0, 0, t["W"], t["H"])
+        self._clear_targets(t)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        for i in range(4):
+            ctx.enable_direct(_GL_CLIP_DISTANCE0 + i)
+        t["bones"].use(location=0)
+        prog["bones"].value = 0
+        prog["view"].write(v.view.T.copy().tobytes())
+        prog["proj"].write(proj.T.copy().tobytes())
+        prog["grid"].value = (cols, rows)
+        self._vao.render(moderngl.TRIANGLES, instances=n)
+        for i in range(4):
+            ctx.disable_direct(_GL_CLIP_DISTANCE0 + i)
+        ctx.disable(moderngl.DEPTH_TEST)
+
+    @staticmethod
+    def _clear_targets(t):
+        # Zero means "no model" in both attachments: the triangle texture stores id + 1 (moderngl
+        # clears integer attachments with the bit pattern of a float, so only 0 is portable).
+        t["fbo"].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+
+    def _bind_cost_inputs(self, prog, t, v, channels):
+        units = {"model_z": t["z"], "model_tri": t["tri"], "obs_z": v.obs_z, "obs_mask": v.obs_mask,
+                 "obs_bits": v.obs_bits, "tri_bits": v.tri_bits}
+        for unit, (name, tex) in enumerate(units.items()):
+            if name in prog and tex is not None:
+                tex.use(location=unit)
+                prog[name].value = unit
+        if "tile" in prog:
+            prog["tile"].value = self.tile
+        if "depth_params" in prog:
+            prog["depth_params"].value = self.depth_params.as_vec4()
+
+    def _reduce(self, t, v, n, cols, rows, channels, method):
+        defines = self._defines(channels)
+        if method == "compute":
+            prog = self.programs.get(compute="reduce.comp", defines=defines, aliases=self._aliases())
+            self._bind_cost_inputs(prog, t, v, channels)
+            prog["grid"].value = (cols, rows)
+            t["sums"].bind_to_storage_buffer(0)
+            prog.run(cols, rows, 1)
+            sums = np.frombuffer(t["sums"].read(size=n * 16), dtype=np.float32).reshape(n, 4)
+            return sums.astype(np.float64)
+        prog = self.programs.get(vertex="fullscreen.vert", fragment="cost.frag", defines=defines,
+                                 aliases=self._aliases())
+        self._bind_cost_inputs(prog, t, v, channels)
+        vao = self._fullscreen_vao(prog)
+        t["cost_fbo"].use()
+        t["cost_fbo"].viewport = (0, 0, t["W"], t["H"])
+        vao.render(moderngl.TRIANGLES, vertices=3)
+        t["cost"].build_mipmaps(0, t["levels"])
+        raw = np.frombuffer(t["cost"].read(level=t["levels"]), dtype=np.float32).reshape(rows, cols, 4)
+        means = raw.reshape(rows * cols, 4)[:n].astype(np.float64)
+        return means * float(self.tile * self.tile)
+
+    def _fullscreen_vao(self, prog):
+        if not hasattr(self, "_fs_vaos"):
+            self._fs_vaos = {}
+        key = id(prog)
+        if key not in self._fs_vaos:
+            self._fs_vaos[key] = self.ctx.vertex_array(prog, [])
+        return self._fs_vaos[key]
+
+    def _time_reductions(self, t, n, cols, rows, channels):
+        """Time both reductions on a real batch and return the faster one's name."""
+        v = self.views[0]
+        if any(x is None for x in (v.obs_z if "depth" in channels else 0,
+                                     v.obs_mask if "silhouette" in channels else 0,
+                                     v.obs_bits if "appearance" in channels else 0)):
+            return "compute"
+        self._render(t, v, n, cols, rows)
+        times = {}
+        for method in ("mipmap", "compute"):
+            self._reduce(t, v, n, cols, rows, channels, method)  # compile and warm up
+            t0 = time.perf_counter()
+            for _ in range(3):
+                self._reduce(t, v, n, cols, rows, channels, method)
+            times[method] = time.perf_counter() - t0
+        best = min(times, key=times.get)
+        log.info("reduction timing %s -> using %s", {k: round(s * 1e3, 2) for k, s in times.items()}, best)
+        return best
+
+    # ------------------------------------------------------------------------------ utilities
+    def render_tiles(self, skinning, cam: int = 0):
+        """Debug/test helper: the rendered model depth and triangle-id tiles of a batch.
+
+        Returns
+        -------
+        depth : (N, tile, tile) float32, metres (0 = empty); tri : (N, tile, tile) int32 (-1 = empty)
+        """
+        S = np.ascontiguousarray(skinning, dtype=np.float32)
+        n = S.shape[0]
+        if n > self.max_batch:
+            raise ValueError(f"render_tiles takes at most {self.max_batch} candidates")
+        cols, rows = _grid_for(n, self.max_tiles_side)
+        t = self._target(cols, rows)
+        t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
+        self._render(t, self._check_view(cam), n, cols, rows)
+        T = self.tile
+        z = np.frombuffer(t["z"].read(), np.float32).reshape(rows, T, cols, T).transpose(0, 2, 1, 3)
+        tri = np.frombuffer(t["tri"].read(), np.int32).reshape(rows, T, cols, T).transpose(0, 2, 1, 3) - 1
+        return z.reshape(-1, T, T)[:n].copy(), tri.reshape(-1, T, T)[:n].copy()
+
+    def release(self):
+        """Free every GL object the engine made (idempotent)."""
+        if self._released:
+            return
+        # moderngl re-binds "the previous framebuffer" when it creates the next one; if that is
+        # one of ours after release, the next engine gets GL_INVALID_OPERATION. Park the binding
+        # on a tiny framebuffer that lives as long as the context.
+        idle = getattr(self.ctx, "_gltrack_idle_fbo", None)
+        if idle is None:
+            idle = self.ctx.simple_framebuffer((1, 1))
+            self.ctx._gltrack_idle_fbo = idle
+        idle.use()
+        for t in self._targets.values():
+            self._release_target(t)
+        self._targets.clear()
+        for vao in getattr(self, "_fs_vaos", {}).values():
+            vao.release()
+        for v in self.views:
+            for tex in (v.obs_z, v.obs_mask, v.obs_bits, v.tri_bits):
+                if tex is not None:
+                    tex.release()
+        for obj in (self._vao, self._vbo_pos, self._vbo_j, self._vbo_w, self._ibo):
+            obj.release()
+        if self._owns_programs:
+            self.programs.release()
+        self._released = True
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def choose_reduction(ctx: moderngl.Context) -> str:
+    """Which reduction ``reduction="auto"`` will most likely pick here ("compute" needs GL 4.3).
+
+    The engine decides for real by timing both on its first batch; this reports the capability.
+    """
+    return "compute or mipmap (timed on the first batch)" if ctx.version_code >= 430 else "mipmap"

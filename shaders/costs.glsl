@@ -1,0 +1,76 @@
+// Per-pixel costs of the scoring engine; shared by cost.frag (mipmap reduction) and
+// reduce.comp (compute reduction) so both paths compute exactly the same numbers.
+// The CPU twin of every function here is in gltrack/render/reference.py.
+//
+// Channels of the returned vec4:  x = depth cost, y = silhouette XOR count,
+//                                 z = appearance consistent-pixel count, w = custom cost.
+// Enabled by #defines: CH_DEPTH, CH_DEPTH_SMOOTH, CH_SILHOUETTE, CH_APPEARANCE, CH_CUSTOM.
+
+uniform sampler2D model_z;    // grid texture: camera z of the model, 0 = no model
+uniform isampler2D model_tri; // grid texture: 1 + triangle id, 0 = no model
+uniform sampler2D obs_z;      // tile-sized: observed depth in metres, 0 = no observation
+uniform sampler2D obs_mask;   // tile-sized: r = foreground, g = blocked (Bandouch's I_B)
+uniform usampler2D obs_bits;  // tile-sized: HLS bitmasks of the observed colour (h, l, s)
+uniform usampler2D tri_bits;  // 1024 wide: HLS bitmasks of each triangle's colour cluster
+uniform int tile;
+// depth_params: smoothstep scale (m), cost when only the model is present, cost when only the
+// observation is present, neighbour penalty of the smoothed likelihood.
+uniform vec4 depth_params;
+
+float depth_pixel(float zo, float zm) {
+    bool o = zo > 0.0;
+    bool m = zm > 0.0;
+    if (o && m) return smoothstep(0.0, depth_params.x, abs(zo - zm));
+    if (m) return depth_params.y;
+    if (o) return depth_params.z;
+    return 0.0;
+}
+
+#ifdef CH_CUSTOM
+#include "custom_cost.glsl"
+#endif
+
+vec4 pixel_costs(ivec2 p) {
+    ivec2 local = p % tile;
+    vec4 c = vec4(0.0);
+#if defined(CH_DEPTH) || defined(CH_DEPTH_SMOOTH)
+    float zo = texelFetch(obs_z, local, 0).r;
+#ifdef CH_DEPTH_SMOOTH
+    // Ganapathi's smoothed likelihood: best model pixel in the 3x3 neighbourhood (inside the tile),
+    // paying a constant penalty for not being the pixel itself.
+    float best = depth_pixel(zo, texelFetch(model_z, p, 0).r);
+    for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+            ivec2 q = local + ivec2(dx, dy);
+            if ((dx == 0 && dy == 0) || any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, ivec2(tile))))
+                continue;
+            best = min(best, depth_pixel(zo, texelFetch(model_z, p + ivec2(dx, dy), 0).r) + depth_params.w);
+        }
+    }
+    c.x = best;
+#else
+    c.x = depth_pixel(zo, texelFetch(model_z, p, 0).r);
+#endif
+#endif
+#if defined(CH_SILHOUETTE) || defined(CH_APPEARANCE)
+    vec2 fb = texelFetch(obs_mask, local, 0).rg;
+    bool blocked = fb.g > 0.5;
+#endif
+#ifdef CH_SILHOUETTE
+    bool model_on = texelFetch(model_z, p, 0).r > 0.0;
+    bool fg = fb.r > 0.5;
+    c.y = (model_on != fg && !blocked) ? 1.0 : 0.0;
+#endif
+#ifdef CH_APPEARANCE
+    int tri = texelFetch(model_tri, p, 0).r - 1;
+    if (tri >= 0 && !blocked) {
+        uvec3 ob = texelFetch(obs_bits, local, 0).rgb;
+        uvec3 tb = texelFetch(tri_bits, ivec2(tri % 1024, tri / 1024), 0).rgb;
+        c.z = all(notEqual(ob & tb, uvec3(0u))) ? 1.0 : 0.0;
+    }
+#endif
+#ifdef CH_CUSTOM
+    c.w = custom_cost(p, local);
+#endif
+    return c;
+}

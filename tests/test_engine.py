@@ -1,0 +1,270 @@
+"""The GPU scoring engine against its independent CPU twin (gltrack.render.reference).
+
+Tolerance: engine and reference are two rasterisers; they can disagree only on pixels whose centre
+lies (within float32 rounding) on a triangle edge or where two surfaces are within float32 depth
+resolution. On the default body at 64x64 that is a handful of pixels out of several hundred, so
+each candidate's sum must agree within 1 % of the reference's value (with a floor of one pixel's
+worth for near-zero sums).
+"""
+import os
+import resource
+
+import numpy as np
+import pytest
+
+from gltrack.body.dofs import make_dofs
+from gltrack.body.kinematics import Kinematics
+from gltrack.body.mesh import make_body_mesh
+from gltrack.body.skeleton import default_skeleton
+from gltrack.camera import look_at_camera
+from gltrack.gl.programs import ShaderError
+from gltrack.render import reference as ref
+from gltrack.render.engine import CustomCost, DepthCostParams, ScoringEngine, _grid_for
+
+TILE = 64
+
+
+@pytest.fixture(scope="module")
+def body():
+    skel = default_skeleton(1.75)
+    dofs = make_dofs(skel, "full")
+    return skel, dofs, Kinematics(skel, dofs), make_body_mesh(skel)
+
+
+def cams(n=1, size=TILE, kind="depth"):
+    out = []
+    for i in range(n):
+        a = 2 * np.pi * i / max(n, 1) + 0.3
+        eye = (2.4 * np.sin(a), 1.0, 2.4 * np.cos(a))
+        out.append(look_at_camera(f"cam{i}", eye, (0, 0.9, 0), size, size, 50.0, kind=kind))
+    return out
+
+
+def random_poses(body, rng, n, sigma=0.35):
+    skel, dofs, kin, _ = body
+    P = dofs.zero(skel) + rng.normal(size=(n, dofs.size)) * sigma
+    P[:, :3] = dofs.zero(skel)[:3] + rng.normal(size=(n, 3)) * 0.05
+    P[:, 3:6] *= 0.3
+    return dofs.validate(P)
+
+
+def ref_render(mesh, S, cam):
+    return ref.render_candidates(mesh, S, cam.K, cam.R, cam.t, cam.width, cam.height)
+
+
+def assert_close(engine, reference, what):
+    tol = 0.01 * np.maximum(np.abs(reference), 100.0)
+    bad = np.abs(engine - reference) > tol
+    assert not bad.any(), f"{what}: engine {engine[bad]} vs reference {reference[bad]}"
+
+
+def test_grid_is_power_of_two():
+    for n, g in [(1, (1, 1)), (2, (2, 1)), (3, (2, 2)), (5, (4, 2)), (1024, (32, 32))]:
+        assert _grid_for(n, 64) == g
+    with pytest.raises(ValueError):
+        _grid_for(5000, 64)
+
+
+def test_rendered_tiles_match_reference(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    S = kin.skinning_matrices(random_poses(body, rng, 6))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+        z, tri = eng.render_tiles(S)
+    rz, rtri = ref_render(mesh, S, cam)
+    both = (z > 0) & (rz > 0)
+    differ = (z > 0) != (rz > 0)
+    assert both.sum(axis=(1, 2)).min() > 200, "the body must be visible"
+    assert differ.sum() <= 0.01 * both.sum()
+    assert np.abs(z[both] - rz[both]).max() < 1e-3
+    assert (tri[both] == rtri[both]).mean() > 0.98
+    assert set(np.unique(tri[z == 0])) == {-1}
+
+
+@pytest.mark.parametrize("smooth", [False, True])
+def test_depth_scores_match_reference(ctx, body, rng, smooth):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    truth = random_poses(body, rng, 1)
+    obs, _ = ref_render(mesh, kin.skinning_matrices(truth), cam)
+    obs = obs[0] + rng.normal(size=obs[0].shape) * 0.01 * (obs[0] > 0)
+    obs[rng.random(obs.shape) < 0.03] = 0.0  # dropouts
+    S = kin.skinning_matrices(random_poses(body, rng, 12))
+    params = DepthCostParams(smooth=smooth)
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, depth_params=params) as eng:
+        eng.set_depth(0, obs)
+        got = {}
+        for red in ("mipmap", "compute"):
+            eng.reduction, eng._auto_pending = red, False
+            got[red] = eng.score(S, ["depth"])[:, 0]
+    rz, _ = ref_render(mesh, S, cam)
+    want = np.array([ref.depth_cost(rz[i], obs, scale=params.scale, c_model_only=params.c_model_only,
+                                    c_obs_only=params.c_obs_only, smooth=smooth, penalty=params.penalty)
+                     for i in range(len(S))])
+    assert_close(got["mipmap"][:, 0], want, "depth/mipmap")
+    assert_close(got["compute"][:, 0], want, "depth/compute")
+    assert np.allclose(got["mipmap"], got["compute"], rtol=1e-4, atol=1e-3)
+    assert np.all(got["mipmap"][:, 1:] == 0), "channels not asked for stay zero"
+    assert np.ptp(want) > 10, "different poses must score differently"
+
+
+def test_silhouette_and_appearance_multi_camera(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    cs = cams(4, size=TILE, kind="colour")
+    truth = random_poses(body, rng, 1)
+    S = kin.skinning_matrices(random_poses(body, rng, 8))
+    tri_bits = rng.integers(1, 2**32, size=(mesh.n_faces, 3), dtype=np.uint64).astype(np.uint32)
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE) as eng:
+        obs = []
+        for c, cam in enumerate(cs):
+            tz, _ = ref_render(mesh, kin.skinning_matrices(truth), cam)
+            fg = tz[0] > 0
+            block = np.zeros_like(fg)
+            block[: TILE // 3, : TILE // 2] = True  # an occluder's polygon
+            bits = (1 << rng.integers(0, 32, size=(TILE, TILE, 3))).astype(np.uint32)
+            eng.set_masks(c, fg, block)
+            eng.set_appearance(c, bits, tri_bits)
+            obs.append((fg, block, bits))
+        out = eng.score(S, ["silhouette", "appearance"])
+    assert out.shape == (8, 4, 4)
+    for c, cam in enumerate(cs):
+        rz, rtri = ref_render(mesh, S, cam)
+        fg, block, bits = obs[c]
+        sil = np.array([ref.silhouette_cost(rz[i] > 0, fg, block) for i in range(len(S))])
+        app = np.array([ref.appearance_score(rtri[i], bits, tri_bits, block) for i in range(len(S))])
+        assert_close(out[:, c, 1], sil, f"silhouette cam{c}")
+        assert_close(out[:, c, 2], app, f"appearance cam{c}")
+        assert np.ptp(sil) > 5 and app.max() > 10
+
+
+def test_observation_resampled_to_tile(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    cam = look_at_camera("tof", (0.3, 1.0, 3.0), (0, 0.9, 0), 176, 144, 40.0, kind="depth")
+    truth = random_poses(body, rng, 1)
+    obs, _ = ref_render(mesh, kin.skinning_matrices(truth), cam)
+    S = kin.skinning_matrices(random_poses(body, rng, 4))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+        eng.set_depth(0, obs[0])
+        got = eng.score(S)[:, 0, 0]
+    import cv2
+
+    small = cv2.resize(obs[0].astype(np.float32), (TILE, TILE), interpolation=cv2.INTER_NEAREST)
+    st = cam.scaled(TILE, TILE)
+    rz, _ = ref_render(mesh, S, st)
+    want = np.array([ref.depth_cost(rz[i], small) for i in range(len(S))])
+    assert_close(got, want, "resampled depth")
+
+
+def test_tiles_are_clipped(ctx, body):
+    """A candidate sticking out of its tile must not bleed into the neighbour tiles."""
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    p = np.repeat(dofs.zero(skel)[None], 4, axis=0)
+    p[0, 0] += 0.9   # half out of its tile to the right
+    p[1, 1] += 0.9   # out of the top/bottom edge
+    p[2, 2] += 30.0  # far behind the camera: nothing visible
+    p[3, 0] -= 0.9
+    S = kin.skinning_matrices(p)
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+        z, _ = eng.render_tiles(S)
+    rz, _ = ref_render(mesh, S, cam)
+    assert (z[2] > 0).sum() == 0
+    for i in (0, 1, 3):
+        assert 0 < (z[i] > 0).sum()
+        assert abs(int((z[i] > 0).sum()) - int((rz[i] > 0).sum())) <= 0.02 * (rz[i] > 0).sum() + 2
+
+
+def test_chunking_matches_single_batch(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    obs, _ = ref_render(mesh, kin.skinning_matrices(random_poses(body, rng, 1)), cam)
+    S = kin.skinning_matrices(random_poses(body, rng, 37))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, max_texture=256) as small, \
+            ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as big:
+        assert small.max_batch == 16
+        for e in (small, big):
+            e.set_depth(0, obs[0])
+        a, b = small.score(S), big.score(S)
+    assert np.allclose(a, b, rtol=1e-5, atol=1e-3)
+    assert small.evaluations == 37
+
+
+def test_custom_cost_shader(ctx, body, rng, tmp_path):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    src = tmp_path / "absdiff.glsl"
+    src.write_text(
+        "float custom_cost(ivec2 pixel, ivec2 local) {\n"
+        "    float zo = texelFetch(obs_z, local, 0).r;\n"
+        "    float zm = texelFetch(model_z, pixel, 0).r;\n"
+        "    return (zo > 0.0 && zm > 0.0) ? min(abs(zo - zm), 0.5) : 0.0;\n"
+        "}\n")
+    obs, _ = ref_render(mesh, kin.skinning_matrices(random_poses(body, rng, 1)), cam)
+    S = kin.skinning_matrices(random_poses(body, rng, 5))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, custom=CustomCost(str(src))) as eng:
+        eng.set_depth(0, obs[0])
+        got = eng.score(S, ["custom"])[:, 0, 3]
+    rz, _ = ref_render(mesh, S, cam)
+    both = (rz > 0) & (obs > 0)
+    want = np.where(both, np.minimum(np.abs(obs - rz), 0.5), 0).sum(axis=(1, 2))
+    assert np.allclose(got, want, rtol=0.02, atol=0.05)
+    assert np.ptp(want) > 0.1
+
+
+def test_bad_input_gives_clear_errors(ctx, body, tmp_path):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    S = kin.skinning_matrices(dofs.zero(skel))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+        with pytest.raises(ValueError, match="no observation"):
+            eng.score(S)
+        eng.set_depth(0, np.zeros((TILE, TILE)))
+        assert eng.score(S[:0]).shape == (0, 1, 4)
+        with pytest.raises(ValueError, match="shape"):
+            eng.score(S[:, :3])
+        bad = S.copy()
+        bad[0, 0, 0, 0] = np.nan
+        with pytest.raises(ValueError, match="NaN"):
+            eng.score(bad)
+        with pytest.raises(ValueError, match="size 10x12"):
+            eng.set_depth(0, np.zeros((12, 10)))
+        with pytest.raises(ValueError, match="unknown"):
+            eng.score(S, ["colour"])
+        with pytest.raises(ValueError, match="camera index"):
+            eng.set_depth(3, np.zeros((TILE, TILE)))
+    with pytest.raises(ValueError, match="power of two"):
+        ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=48)
+    with pytest.raises(ShaderError, match="not found"):
+        ScoringEngine(ctx, mesh, skel.n_joints, [cam], custom=CustomCost(str(tmp_path / "nope.glsl"))).score(
+            S, ["custom"])
+    broken = tmp_path / "broken.glsl"
+    broken.write_text("float custom_cost(ivec2 pixel, ivec2 local) {\n    return undefined_name;\n}\n")
+    eng = ScoringEngine(ctx, mesh, skel.n_joints, [cam], custom=CustomCost(str(broken)))
+    eng.set_depth(0, np.zeros((TILE, TILE)))
+    with pytest.raises(ShaderError, match="undefined_name"):
+        eng.score(S, ["custom"])
+    eng.release()
+    eng.release()  # idempotent
+    with pytest.raises(RuntimeError, match="released"):
+        eng.score(S)
+
+
+def _rss_mb():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def test_memory_flat_over_10000_batches(ctx, body):
+    skel, dofs, kin, mesh = body
+    cam = cams(size=16)[0]
+    S = kin.skinning_matrices(dofs.zero(skel))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=16, reduction="compute") as eng:
+        eng.set_depth(0, np.zeros((16, 16)))
+        for i in range(10_000):
+            eng.score(S)
+            if i == 1000:
+                base = _rss_mb()
+        grown = _rss_mb() - base
+    for _ in range(50):  # engines come and go without leaking GL objects
+        ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=16).release()
+    assert grown < 20, f"memory grew by {grown:.1f} MB over 9000 batches"
