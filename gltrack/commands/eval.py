@@ -1,0 +1,62 @@
+"""``gltrack eval RESULT DATASET``: score a tracking result against the dataset's ground truth."""
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "eval"
+HELP = "score a results folder against a dataset's ground truth (joint, MPJPE, PA-MPJPE, marker errors)"
+
+
+def add_arguments(p):
+    p.add_argument("result", help="results folder (poses.npz, or frames.jsonl of an unfinished run)")
+    p.add_argument("dataset", help="dataset folder with groundtruth.npz (or a groundtruth.npz file)")
+    p.add_argument("--json", metavar="FILE", default=None,
+                   help="write the metrics (summary and per-frame) as JSON")
+    p.add_argument("--csv", metavar="FILE", default=None, help="write the per-frame errors as CSV")
+    p.add_argument("--plot", metavar="FILE", default=None, help="plot errors over time (PNG)")
+
+
+def _outputs(args):
+    from gltrack.cli import UsageError
+
+    outs = [(flag, Path(v)) for flag, v in (("--json", args.json), ("--csv", args.csv),
+                                            ("--plot", args.plot)) if v]
+    resolved = [p.resolve() for _, p in outs]
+    if len(set(resolved)) != len(resolved):
+        raise UsageError("--json, --csv and --plot must name different files")
+    for flag, p in outs:
+        if p.is_dir():
+            raise UsageError(f"{flag} {p} is a folder, not a file")
+    if args.plot and Path(args.plot).suffix.lower() not in (".png", ".pdf", ".svg"):
+        raise UsageError(f"--plot {args.plot}: use a .png, .pdf or .svg file name")
+
+
+def run(args):
+    from gltrack.data.dataset import Dataset, load_groundtruth
+    from gltrack.data.results import load_results
+    from gltrack.eval import metrics as M
+    from gltrack.eval import report
+
+    _outputs(args)
+    result = load_results(args.result)
+    ds_path = Path(args.dataset)
+    fps = None
+    if ds_path.is_file():
+        gt = load_groundtruth(ds_path)
+    else:
+        ds = Dataset.open(ds_path)
+        gt, fps = ds.groundtruth(), ds.fps
+        ds.close()
+        if gt is None:
+            raise ValueError(f"{ds_path}: dataset has no groundtruth.npz, nothing to score against")
+    metrics = M.evaluate(result, gt)
+    print(f"{args.result}: method {result['method']!r} vs {args.dataset}")
+    print(report.summary_table(metrics))
+    if args.json:
+        report.write_json(metrics, args.json)
+    if args.csv:
+        report.write_csv(metrics, args.csv)
+    if args.plot:
+        report.plot_errors(metrics, args.plot, title=f"{result['method']}: {Path(args.result).name}",
+                           fps=fps)
+    return 0

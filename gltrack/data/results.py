@@ -1,0 +1,439 @@
+"""The results folder: a crash-safe per-frame log, the final pose arrays, and resume.
+
+Layout::
+
+    RESULT/
+      run.json      {"format": "gltrack-results", "version": 1, "method": M, "joint_names": [...],
+                     "marker_names": [...] | null}   written once, when the run starts
+      frames.jsonl  one JSON object per finished frame, appended and fsync'ed as it is tracked:
+                    {"frame", "params", "joints", "markers", "score", "evaluations", "seconds"}
+      poses.npz     params (N,D), joints (N,J,3) m, joint_names (J,), markers (N,M,3) m,
+                    marker_names (M,), score (N,), method (), frame (N,), evaluations (N,),
+                    seconds (N,)                        written by ResultsWriter.finish()
+      timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total}
+
+``frames.jsonl`` is the source of truth while tracking: a process killed at any point loses at
+most the frame it was writing, and ``ResultsWriter(..., resume=True)`` continues after the last
+complete line. ``poses.npz`` and ``timing.json`` are written through a temporary file and an
+atomic rename, so they are either absent or complete.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+FORMAT = "gltrack-results"
+VERSION = 1
+RUN = "run.json"
+FRAMES = "frames.jsonl"
+POSES = "poses.npz"
+TIMING = "timing.json"
+BVH = "poses.bvh"
+#: Files derived from frames.jsonl: stale as soon as a resumed run appends.
+_DERIVED = (POSES, TIMING, BVH)
+_RECORD_KEYS = ("frame", "params", "joints", "markers", "score", "evaluations", "seconds")
+
+
+def _fsync_dir(path):
+    # The rename itself is only durable once the directory entry is on disk.
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _atomic_write_bytes(path, data):
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _atomic_savez(path, **arrays):
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.npz")
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _read_run(out):
+    path = Path(out) / RUN
+    try:
+        run = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: missing (not a gltrack results folder?)") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: unreadable JSON: {exc}") from None
+    if not isinstance(run, dict) or run.get("format") != FORMAT:
+        raise ValueError(f"{path}: field 'format' must be {FORMAT!r}")
+    if run.get("version") != VERSION:
+        raise ValueError(f"{path}: field 'version' {run.get('version')!r} unknown (expected {VERSION})")
+    if not isinstance(run.get("method"), str):
+        raise ValueError(f"{path}: field 'method' must be a string")
+    for key in ("joint_names", "marker_names"):
+        v = run.get(key)
+        if v is None and key == "marker_names":
+            continue
+        if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+            raise ValueError(f"{path}: field {key!r} must be a list of strings")
+    return run
+
+
+def _parse_record(line, where, n_joints, n_markers):
+    rec = json.loads(line)
+    if not isinstance(rec, dict) or any(k not in rec for k in _RECORD_KEYS):
+        raise ValueError(f"{where}: a record needs the fields {list(_RECORD_KEYS)}")
+    try:
+        out = {
+            "frame": int(rec["frame"]),
+            "params": np.asarray(rec["params"], dtype=np.float64).reshape(-1),
+            "joints": np.asarray(rec["joints"], dtype=np.float64).reshape(n_joints, 3),
+            "markers": np.asarray(rec["markers"] if rec["markers"] is not None else [],
+                                  dtype=np.float64).reshape(n_markers, 3),
+            "score": float(rec["score"]),
+            "evaluations": int(rec["evaluations"]),
+            "seconds": float(rec["seconds"]),
+        }
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: bad field value: {exc}") from None
+    return out
+
+
+def read_frames(out, n_joints, n_markers):
+    """Read ``frames.jsonl``, tolerating a torn last line.
+
+    Returns
+    -------
+    records : list of dict
+        Parsed records in file order (see :class:`ResultsWriter.append` for the fields).
+    good_bytes : int
+        Length of the file prefix holding complete, valid lines.
+    """
+    path = Path(out) / FRAMES
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return [], 0
+    records, pos = [], 0
+    *complete, tail = data.split(b"\n")
+    for i, raw in enumerate(complete):
+        where = f"{path}, line {i + 1}"
+        try:
+            rec = _parse_record(raw.decode("utf-8"), where, n_joints, n_markers)
+        except (ValueError, UnicodeDecodeError) as exc:
+            if i == len(complete) - 1 and not tail:
+                # Only the final line can be a write cut short by a crash; anything earlier is damage.
+                log.warning("%s: dropping unreadable last line (%s)", where, exc)
+                break
+            raise ValueError(f"{where}: corrupt record: {exc}") from None
+        records.append(rec)
+        pos += len(raw) + 1
+    if tail:
+        # append() returns only after the newline is on disk, so a line without one never finished.
+        log.warning("%s, line %d: dropping incomplete last line (%d bytes, no newline)",
+                    path, len(complete) + 1, len(tail))
+    return records, pos
+
+
+class ResultsWriter:
+    """Write a results folder frame by frame, crash-safe, with resume.
+
+    Parameters
+    ----------
+    out : path
+        Results folder (created if missing).
+    method : str
+        Tracking method name, stored in ``run.json`` and ``poses.npz``.
+    joint_names : sequence of str, (J,)
+    marker_names : sequence of str, (M,), optional
+    resume : bool
+        Continue an existing run: read ``frames.jsonl`` (dropping a torn last line with a warning)
+        and append after it. ``method`` and the names must match the stored run.
+    overwrite : bool
+        Delete the results files of an existing run in ``out`` and start afresh.
+
+    Raises
+    ------
+    FileExistsError
+        ``out`` already holds a run and neither ``resume`` nor ``overwrite`` is set.
+    ValueError
+        The stored run is damaged or does not match (on resume).
+    """
+
+    def __init__(self, out, method, joint_names, marker_names=None, resume=False, overwrite=False):
+        if resume and overwrite:
+            raise ValueError("resume and overwrite exclude each other")
+        self.out = Path(out)
+        self.method = str(method)
+        self.joint_names = [str(s) for s in joint_names]
+        self.marker_names = None if marker_names is None else [str(s) for s in marker_names]
+        self._n_markers = 0 if self.marker_names is None else len(self.marker_names)
+        self._records = []
+        self._done = set()
+        self._n_params = None
+        self.out.mkdir(parents=True, exist_ok=True)
+        existing = [n for n in (RUN, FRAMES) + _DERIVED if (self.out / n).exists()]
+        if existing and resume:
+            self._resume()
+        elif existing and not overwrite:
+            raise FileExistsError(f"{self.out} already holds results ({', '.join(existing)}); "
+                                  "resume or overwrite")
+        else:
+            for name in existing:
+                (self.out / name).unlink()
+            run = {"format": FORMAT, "version": VERSION, "method": self.method,
+                   "joint_names": self.joint_names, "marker_names": self.marker_names}
+            _atomic_write_bytes(self.out / RUN, json.dumps(run, indent=1).encode())
+        self._f = open(self.out / FRAMES, "ab")
+
+    def _resume(self):
+        run = _read_run(self.out)
+        mine = {"method": self.method, "joint_names": self.joint_names,
+                "marker_names": self.marker_names}
+        for key, value in mine.items():
+            if run[key] != value:
+                raise ValueError(f"{self.out / RUN}: field {key!r} is {run[key]!r}, this run has "
+                                 f"{value!r}; cannot resume")
+        records, good = read_frames(self.out, len(self.joint_names), self._n_markers)
+        path = self.out / FRAMES
+        if path.exists() and path.stat().st_size != good:
+            # Cut the torn tail so the next record starts on a line of its own.
+            with open(path, "r+b") as f:
+                f.truncate(good)
+                f.flush()
+                os.fsync(f.fileno())
+        self._records = records
+        self._done = {r["frame"] for r in records}
+        if len(self._done) != len(records):
+            raise ValueError(f"{path}: a frame is recorded twice")
+        if records:
+            self._n_params = len(records[0]["params"])
+        # A resumed run may add frames: the old summary files no longer describe it.
+        for name in _DERIVED:
+            if (self.out / name).exists():
+                (self.out / name).unlink()
+        log.info("resuming %s: %d frames done", self.out, len(records))
+
+    @property
+    def done_frames(self):
+        """Sorted list of the dataset frame indices already finished."""
+        return sorted(self._done)
+
+    def last(self):
+        """The most recently appended record (dict of frame, params, joints, markers, score,
+        evaluations, seconds), or None when no frame is done."""
+        return self._records[-1] if self._records else None
+
+    def append(self, frame, params, joints, markers=None, score=0.0, evaluations=0, seconds=0.0):
+        """Record one finished frame and make it durable before returning.
+
+        Parameters
+        ----------
+        frame : int
+            Dataset frame index; must not be recorded already.
+        params : (D,) float
+            Pose parameters (radians, metres for the root translation).
+        joints : (J, 3) float, metres
+        markers : (M, 3) float, metres, or None when the run has no markers.
+        score : float
+            Tracker's score of the pose.
+        evaluations : int
+            Candidate poses evaluated for this frame.
+        seconds : float
+            Wall time spent on this frame.
+        """
+        frame = int(frame)
+        if frame < 0:
+            raise ValueError(f"frame must be >= 0, got {frame}")
+        if frame in self._done:
+            raise ValueError(f"frame {frame} is already recorded in {self.out / FRAMES}")
+        params = np.asarray(params, dtype=np.float64).reshape(-1)
+        if self._n_params is not None and params.size != self._n_params:
+            raise ValueError(f"params has {params.size} values, earlier frames {self._n_params}")
+        joints = np.asarray(joints, dtype=np.float64)
+        if joints.shape != (len(self.joint_names), 3):
+            raise ValueError(f"joints must be ({len(self.joint_names)}, 3), got {joints.shape}")
+        markers = np.zeros((0, 3)) if markers is None else np.asarray(markers, dtype=np.float64)
+        if markers.shape != (self._n_markers, 3):
+            raise ValueError(f"markers must be ({self._n_markers}, 3), got {markers.shape}")
+        rec = {"frame": frame, "params": params, "joints": joints, "markers": markers,
+               "score": float(score), "evaluations": int(evaluations), "seconds": float(seconds)}
+        line = json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                           for k, v in rec.items()}, separators=(",", ":"))
+        # One write of the whole line: a crash leaves at most a torn last line, never a mix.
+        self._f.write(line.encode() + b"\n")
+        self._f.flush()
+        os.fsync(self._f.fileno())
+        self._records.append(rec)
+        self._done.add(frame)
+        self._n_params = params.size
+
+    def arrays(self):
+        """All finished frames as arrays sorted by frame (the contents of ``poses.npz``)."""
+        return _records_to_arrays(sorted(self._records, key=lambda r: r["frame"]), self.method,
+                                  self.joint_names, self.marker_names, self._n_params)
+
+    def finish(self):
+        """Write ``poses.npz`` and ``timing.json`` from all finished frames and close the log.
+
+        Returns
+        -------
+        dict
+            The timing summary written to ``timing.json``.
+        """
+        self.close()
+        arrays = self.arrays()
+        _atomic_savez(self.out / POSES, **arrays)
+        n = len(self._records)
+        seconds = float(arrays["seconds"].sum())
+        timing = {"frames": n, "seconds": seconds,
+                  "fps": n / seconds if seconds > 0 else None,
+                  "evaluations": int(arrays["evaluations"].sum())}
+        _atomic_write_bytes(self.out / TIMING, json.dumps(timing, indent=1).encode())
+        return timing
+
+    def close(self):
+        """Close the log file (idempotent); finished frames are already on disk."""
+        if not self._f.closed:
+            self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def _records_to_arrays(records, method, joint_names, marker_names, n_params):
+    n, j = len(records), len(joint_names)
+    m = 0 if marker_names is None else len(marker_names)
+    d = n_params or 0
+
+    def stack(key, shape):
+        return np.stack([r[key] for r in records]) if records else np.zeros((0,) + shape)
+
+    return {
+        "params": stack("params", (d,)),
+        "joints": stack("joints", (j, 3)),
+        "joint_names": np.array(joint_names, dtype=str),
+        "markers": stack("markers", (m, 3)),
+        "marker_names": np.array(marker_names or [], dtype=str),
+        "score": np.array([r["score"] for r in records], dtype=np.float64),
+        "method": np.array(method),
+        "frame": np.array([r["frame"] for r in records], dtype=np.int64),
+        "evaluations": np.array([r["evaluations"] for r in records], dtype=np.int64),
+        "seconds": np.array([r["seconds"] for r in records], dtype=np.float64),
+    }
+
+
+def _validate_arrays(a, where):
+    def need(key):
+        if key not in a:
+            raise ValueError(f"{where}: field {key!r} missing")
+        return a[key]
+
+    joints = np.asarray(need("joints"))
+    if joints.ndim != 3 or joints.shape[2] != 3 or not np.issubdtype(joints.dtype, np.number):
+        raise ValueError(f"{where}: field 'joints' must be numeric (N, J, 3), got {joints.shape}")
+    n, j = joints.shape[:2]
+    names = np.asarray(need("joint_names"))
+    if names.shape != (j,) or names.dtype.kind != "U":
+        raise ValueError(f"{where}: field 'joint_names' must be ({j},) strings, got "
+                         f"{names.shape} {names.dtype}")
+    params = np.asarray(need("params"))
+    if params.ndim != 2 or params.shape[0] != n or not np.issubdtype(params.dtype, np.number):
+        raise ValueError(f"{where}: field 'params' must be numeric ({n}, D), got {params.shape}")
+    score = np.asarray(need("score"))
+    if score.shape != (n,):
+        raise ValueError(f"{where}: field 'score' must be ({n},), got {score.shape}")
+    method = np.asarray(need("method"))
+    if method.ndim != 0 or method.dtype.kind != "U":
+        raise ValueError(f"{where}: field 'method' must be a string")
+    markers = np.asarray(a.get("markers", np.zeros((n, 0, 3))))
+    if markers.ndim != 3 or markers.shape[0] != n or markers.shape[2] != 3:
+        raise ValueError(f"{where}: field 'markers' must be ({n}, M, 3), got {markers.shape}")
+    mnames = np.asarray(a.get("marker_names", np.zeros(0, dtype=str)))
+    if mnames.size and (mnames.shape != (markers.shape[1],) or mnames.dtype.kind != "U"):
+        raise ValueError(f"{where}: field 'marker_names' must be ({markers.shape[1]},) strings")
+    frame = np.asarray(a.get("frame", np.arange(n)))
+    if frame.shape != (n,) or frame.dtype.kind not in "iu":
+        raise ValueError(f"{where}: field 'frame' must be ({n},) integers, got {frame.shape}")
+    out = {
+        "params": params.astype(np.float64), "joints": joints.astype(np.float64),
+        "joint_names": [str(s) for s in names], "markers": markers.astype(np.float64),
+        "marker_names": [str(s) for s in mnames], "score": score.astype(np.float64),
+        "method": str(method), "frame": frame.astype(np.int64),
+    }
+    for key in ("evaluations", "seconds"):
+        if key in a:
+            v = np.asarray(a[key])
+            if v.shape != (n,):
+                raise ValueError(f"{where}: field {key!r} must be ({n},), got {v.shape}")
+            out[key] = v
+    return out
+
+
+def load_results(path):
+    """Read a results folder (or a ``poses.npz`` file).
+
+    Uses ``poses.npz`` when present; otherwise rebuilds the arrays from ``run.json`` and
+    ``frames.jsonl`` (a run that crashed or is still going).
+
+    Returns
+    -------
+    dict
+        ``params`` (N, D) float64, ``joints`` (N, J, 3) float64 m, ``joint_names`` list of str,
+        ``markers`` (N, M, 3) float64 m, ``marker_names`` list of str (may be empty), ``score``
+        (N,), ``method`` str, ``frame`` (N,) int64, and ``evaluations`` / ``seconds`` (N,) when
+        recorded.
+
+    Raises
+    ------
+    ValueError
+        Missing or malformed files, naming the file and the field.
+    """
+    path = Path(path)
+    npz = path if path.is_file() else path / POSES
+    if npz.is_file():
+        try:
+            with np.load(npz, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except ValueError as exc:  # object arrays refuse to load without pickle
+            raise ValueError(f"{npz}: unreadable ({exc})") from None
+        except (OSError, EOFError) as exc:
+            raise ValueError(f"{npz}: not a valid npz file ({exc})") from None
+        return _validate_arrays(arrays, str(npz))
+    if not path.is_dir():
+        raise ValueError(f"{path}: no such results folder")
+    if not (path / FRAMES).is_file():
+        raise ValueError(f"{path}: neither {POSES} nor {FRAMES} found")
+    run = _read_run(path)
+    mnames = run.get("marker_names")
+    records, _ = read_frames(path, len(run["joint_names"]), 0 if mnames is None else len(mnames))
+    records.sort(key=lambda r: r["frame"])
+    d = len(records[0]["params"]) if records else 0
+    if any(len(r["params"]) != d for r in records):
+        raise ValueError(f"{path / FRAMES}: field 'params' changes length between frames")
+    arrays = _records_to_arrays(records, run["method"], run["joint_names"], mnames, d)
+    return _validate_arrays(arrays, str(path / FRAMES))

@@ -1,0 +1,148 @@
+"""Reports of :func:`gltrack.eval.metrics.evaluate`: summary table, per-frame CSV, error plot, JSON.
+
+matplotlib is imported here only, and only by :func:`plot_errors`, with the Agg backend.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from gltrack.eval.metrics import SUMMARY_KEYS
+
+log = logging.getLogger(__name__)
+
+_LABELS = {
+    "mean_joint_error_mm": ("mean 3D joint error", "mm"),
+    "mpjpe_mm": ("MPJPE (root-relative)", "mm"),
+    "pa_mpjpe_mm": ("PA-MPJPE (Procrustes)", "mm"),
+    "marker_mean_m": ("marker error, mean", "m"),
+    "marker_max_m": ("marker error, max per frame", "m"),
+    "frac_markers_tracked": ("markers tracked (<= 0.1 m)", ""),
+    "frac_markers_failed": ("markers failed (>= 0.3 m)", ""),
+    "frames": ("frames", ""),
+}
+
+
+def _fmt(key, value):
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    if key == "frames":
+        return str(int(value))
+    if key.startswith("frac_"):
+        return f"{100.0 * value:.1f} %"
+    if key.endswith("_mm"):
+        return f"{value:.1f}"
+    return f"{value:.4f}"
+
+
+def summary_table(metrics):
+    """The summary metrics as an aligned text table (one metric a line)."""
+    rows = [(f"{_LABELS[k][0]}" + (f" [{_LABELS[k][1]}]" if _LABELS[k][1] else ""),
+             _fmt(k, metrics.get(k))) for k in SUMMARY_KEYS]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"{name:<{width}}  {value:>10}" for name, value in rows]
+    extra = []
+    if "joints" in metrics:
+        extra.append(f"joints scored: {len(metrics['joints'])} ({', '.join(metrics['joints'])})")
+    if metrics.get("marker_source") == "joints":
+        extra.append("marker errors use the scored joints (no markers on one side)")
+    return "\n".join(lines + extra)
+
+
+def per_frame_columns(metrics):
+    """Column names of the per-frame table, ``frame`` first."""
+    per = metrics["per_frame"]
+    return ["frame"] + [k for k in per if k != "frame"]
+
+
+def write_csv(metrics, path):
+    """Write the per-frame table as CSV (header row; NaN written as empty cells)."""
+    per = metrics["per_frame"]
+    cols = per_frame_columns(metrics)
+    path = Path(path)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for i in range(len(per["frame"])):
+            row = []
+            for c in cols:
+                v = per[c][i]
+                if c == "frame":
+                    row.append(int(v))
+                else:
+                    row.append("" if np.isnan(v) else f"{float(v):.6g}")
+            w.writerow(row)
+    return path
+
+
+def to_jsonable(metrics):
+    """The metrics as plain JSON types: NaN becomes null, per-frame arrays become lists."""
+    def clean(v):
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, np.ndarray):
+            return [clean(x) for x in v.tolist()]
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, (np.integer,)):
+            return int(v)
+        if isinstance(v, (float, np.floating)):
+            return None if math.isnan(v) or math.isinf(v) else float(v)
+        return v
+
+    return clean(metrics)
+
+
+def write_json(metrics, path):
+    """Write the metrics (summary keys, ``joints``, ``marker_source``, ``per_frame``) as JSON."""
+    path = Path(path)
+    path.write_text(json.dumps(to_jsonable(metrics), indent=1) + "\n")
+    return path
+
+
+def plot_errors(metrics, path, title=None, fps=None):
+    """Plot joint errors (mm) and marker errors (m) over time to an image file (PNG by suffix).
+
+    Parameters
+    ----------
+    metrics : dict from :func:`gltrack.eval.metrics.evaluate`
+    path : path of the image
+    title : str, optional
+    fps : float, optional
+        Frames per second; the x axis is seconds when given, frames otherwise.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    per = metrics["per_frame"]
+    x = np.asarray(per["frame"], dtype=np.float64)
+    xlabel = "frame"
+    if fps:
+        x, xlabel = x / fps, "time [s]"
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6), constrained_layout=True)
+    for key, label in (("joint_error_mm", "3D joint error"), ("mpjpe_mm", "MPJPE"),
+                       ("pa_mpjpe_mm", "PA-MPJPE")):
+        ax1.plot(x, per[key], label=label, lw=1.2)
+    ax1.set_ylabel("error [mm]")
+    ax1.legend(loc="upper left")
+    ax1.grid(alpha=0.3)
+    ax2.plot(x, per["marker_mean_m"], label="marker mean", lw=1.2)
+    ax2.plot(x, per["marker_max_m"], label="marker max", lw=1.2)
+    ax2.axhline(0.1, color="g", ls="--", lw=0.8, label="tracked (0.1 m)")
+    ax2.axhline(0.3, color="r", ls="--", lw=0.8, label="failed (0.3 m)")
+    ax2.set_ylabel("marker error [m]")
+    ax2.set_xlabel(xlabel)
+    ax2.legend(loc="upper left")
+    ax2.grid(alpha=0.3)
+    if title:
+        ax1.set_title(title)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,85 @@
+"""Types and helpers shared by the samplers: weight evaluation, per-layer diagnostics, results.
+
+A sampler never knows how particles are scored: it calls ``weight_fn(particles (N, D)) -> (N,)``
+with non-negative weights, larger = better (a tracker builds it from GPU scores, e.g. with
+:func:`gltrack.sample.weights.bandouch_weights`). Weights may be *relative to the batch* (min-max
+normalised), so a sampler only ever compares weights that came back from the same call.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .resampling import get_resampler
+from .weights import Weights, log_weights
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LayerInfo:
+    """Diagnostics of one weighting step.
+
+    Attributes
+    ----------
+    stage : str, e.g. ``"torso"``, ``"l_arm"``, ``"pipeline1/l_arm"``, ``"sir"``
+    layer : int, annealing layer within the stage (0 = first)
+    n : int, particles weighted (= weight evaluations of this step)
+    n_dims : int, dimensions diffused before this weighting
+    beta : float, exponent applied to the weights (1 = untempered)
+    ess : float, effective sample size after tempering
+    survival : float, ``ess / n``
+    """
+
+    stage: str
+    layer: int
+    n: int
+    n_dims: int
+    beta: float
+    ess: float
+    survival: float
+
+
+@dataclass
+class SampleResult:
+    """What one sampler step returns.
+
+    Attributes
+    ----------
+    estimate : (D,) float64, weighted mean of the final weighted particle set
+    best : (D,) float64, the particle of highest weight in the final set
+    particles : (N, D) float64, the final set resampled to equal weights (next frame's prior)
+    final_particles : (M, D) float64, the final weighted set before resampling
+    weights : Weights of ``final_particles`` (tempered as used for the estimate)
+    evaluations : int, particles passed to ``weight_fn`` in this step
+    layers : list of LayerInfo, one per call of ``weight_fn`` in order
+    info : dict, sampler-specific extras (e.g. the final weight share of each HPS pipeline)
+    """
+
+    estimate: np.ndarray
+    best: np.ndarray
+    particles: np.ndarray
+    final_particles: np.ndarray
+    weights: Weights
+    evaluations: int
+    layers: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+def evaluate(weight_fn, x: np.ndarray) -> np.ndarray:
+    """Call ``weight_fn`` on (N, D) particles and return validated (N,) log-weights."""
+    w = np.asarray(weight_fn(x), dtype=np.float64)
+    if w.shape != (x.shape[0],):
+        raise ValueError(f"weight_fn must return shape ({x.shape[0]},), got {w.shape}")
+    return log_weights(w)
+
+
+def finish(x: np.ndarray, weights: Weights, raw_lw: np.ndarray, rng: np.random.Generator,
+           n_out: int, resampler, evaluations: int, layers: list) -> SampleResult:
+    """Build a :class:`SampleResult` from the final weighted set (resampling to ``n_out``)."""
+    idx = get_resampler(resampler)(weights.W, rng, n_out)
+    return SampleResult(estimate=weights.mean(x), best=x[int(np.argmax(raw_lw))].copy(),
+                        particles=x[idx].copy(), final_particles=x, weights=weights,
+                        evaluations=int(evaluations), layers=list(layers))

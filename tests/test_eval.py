@@ -1,0 +1,248 @@
+"""Evaluation metrics, reports and ``gltrack eval`` end to end."""
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+from scipy.spatial.transform import Rotation
+
+from gltrack.body.dofs import make_dofs
+from gltrack.body.kinematics import Kinematics
+from gltrack.body.skeleton import JOINT_NAMES, default_skeleton
+from gltrack.cli import main
+from gltrack.eval import metrics as M
+from gltrack.eval import report
+
+N = 6
+
+
+def motion(rng, n=N):
+    """Joint trajectories of the real skeleton in random poses, (n, 19, 3) metres."""
+    sk = default_skeleton(1.75)
+    dofs = make_dofs(sk, "full")
+    kin = Kinematics(sk, dofs)
+    params = np.tile(dofs.zero(sk), (n, 1))
+    params[:, 6:] = rng.normal(scale=0.3, size=(n, dofs.size - 6))
+    params[:, :3] += rng.normal(scale=0.5, size=(n, 3))
+    return params, kin.forward(params).positions
+
+
+def gt_dict(rng, n=N):
+    params, joints = motion(rng, n)
+    markers = joints[:, ::2] + rng.normal(scale=0.05, size=joints[:, ::2].shape)
+    return {"joints": joints, "joint_names": list(JOINT_NAMES), "markers": markers,
+            "marker_names": [f"m{i}" for i in range(markers.shape[1])], "params": params}
+
+
+def result_from(gt, joints=None, markers=None):
+    j = gt["joints"] if joints is None else joints
+    return {"joints": j, "joint_names": gt["joint_names"],
+            "markers": gt["markers"] if markers is None else markers,
+            "marker_names": gt["marker_names"], "params": gt["params"],
+            "frame": np.arange(len(j)), "method": "test"}
+
+
+def test_groundtruth_against_itself_is_zero():
+    gt = gt_dict(np.random.default_rng(0))
+    m = M.evaluate(result_from(gt), gt)
+    for key in ("mean_joint_error_mm", "mpjpe_mm", "marker_mean_m", "marker_max_m",
+                "frac_markers_failed"):
+        assert m[key] == 0.0, key
+    assert m["pa_mpjpe_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert m["frac_markers_tracked"] == 1.0 and m["frames"] == N
+    assert set(M.SUMMARY_KEYS) <= set(m)
+    assert m["joints"] == list(M.EVAL_JOINTS)  # all 15 present, spine/clavicles left out
+    assert m["marker_source"] == "markers"
+
+
+def test_constant_offset():
+    gt = gt_dict(np.random.default_rng(1))
+    off = np.array([0.03, 0.0, 0.04])  # |off| = 0.05 m
+    m = M.evaluate(result_from(gt, gt["joints"] + off, gt["markers"] + off), gt)
+    assert m["mean_joint_error_mm"] == pytest.approx(50.0, abs=1e-9)
+    assert m["mpjpe_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert m["pa_mpjpe_mm"] == pytest.approx(0.0, abs=1e-6)
+    assert m["marker_mean_m"] == pytest.approx(0.05) and m["marker_max_m"] == pytest.approx(0.05)
+    assert m["frac_markers_tracked"] == 1.0 and m["frac_markers_failed"] == 0.0
+    np.testing.assert_allclose(m["per_frame"]["joint_error_mm"], 50.0)
+    # Thresholds: 0.2 m is neither tracked nor failed, 0.35 m is failed.
+    m2 = M.evaluate(result_from(gt, markers=gt["markers"] + [0.2, 0, 0]), gt)
+    assert (m2["frac_markers_tracked"], m2["frac_markers_failed"]) == (0.0, 0.0)
+    m3 = M.evaluate(result_from(gt, markers=gt["markers"] + [0, 0.35, 0]), gt)
+    assert (m3["frac_markers_tracked"], m3["frac_markers_failed"]) == (0.0, 1.0)
+
+
+def test_errors_match_a_loop_implementation():
+    rng = np.random.default_rng(2)
+    gt = gt_dict(rng)
+    pred = gt["joints"] + rng.normal(scale=0.04, size=gt["joints"].shape)
+    pm = gt["markers"] + rng.normal(scale=0.15, size=gt["markers"].shape)
+    m = M.evaluate(result_from(gt, pred, pm), gt)
+    idx = [JOINT_NAMES.index(n) for n in M.EVAL_JOINTS]
+    root = JOINT_NAMES.index("pelvis")
+    je, mp, mmean, mmax, tracked, failed, count = [], [], [], [], 0, 0, 0
+    for f in range(N):
+        je.append(np.mean([np.linalg.norm(pred[f, j] - gt["joints"][f, j]) for j in idx]))
+        mp.append(np.mean([np.linalg.norm((pred[f, j] - pred[f, root])
+                                          - (gt["joints"][f, j] - gt["joints"][f, root]))
+                           for j in idx]))
+        d = [np.linalg.norm(pm[f, k] - gt["markers"][f, k]) for k in range(pm.shape[1])]
+        mmean.append(np.mean(d))
+        mmax.append(max(d))
+        tracked += sum(x <= 0.1 for x in d)
+        failed += sum(x >= 0.3 for x in d)
+        count += len(d)
+    assert m["mean_joint_error_mm"] == pytest.approx(1000 * np.mean(je))
+    assert m["mpjpe_mm"] == pytest.approx(1000 * np.mean(mp))
+    assert m["marker_mean_m"] == pytest.approx(np.mean(mmean))
+    assert m["marker_max_m"] == pytest.approx(np.mean(mmax))
+    assert m["frac_markers_tracked"] == pytest.approx(tracked / count)
+    assert m["frac_markers_failed"] == pytest.approx(failed / count)
+    assert 0 < tracked < count and 0 < failed < count  # the thresholds were actually exercised
+    assert m["mpjpe_mm"] != pytest.approx(m["mean_joint_error_mm"])
+
+
+def test_pa_mpjpe_invariant_to_similarity_and_matches_optimiser():
+    rng = np.random.default_rng(3)
+    gt = gt_dict(rng)["joints"]
+    pred = gt + rng.normal(scale=0.03, size=gt.shape)
+    base = M.pa_mpjpe(pred, gt)
+    R = Rotation.from_rotvec([0.4, -1.1, 0.7]).as_matrix()
+    moved = 1.7 * pred @ R.T + np.array([2.0, -1.0, 0.5])
+    np.testing.assert_allclose(M.pa_mpjpe(moved, gt), base, atol=1e-12)
+    assert np.all(M.mean_joint_error(moved, gt) > 10 * base)  # unaligned error does change
+    # Independent check on frame 0: minimise the mean error over rotation, scale and translation
+    # numerically. Procrustes minimises squared error, so the optimum of the *mean* distance is
+    # at most as large, and close to it.
+    p, g = moved[0], gt[0]
+
+    def mean_err(x):
+        rot = Rotation.from_rotvec(x[:3]).as_matrix()
+        return np.linalg.norm(x[3] * p @ rot.T + x[4:] - g, axis=1).mean()
+
+    x0 = np.r_[Rotation.from_matrix(R.T).as_rotvec(), 1 / 1.7, np.zeros(3)]
+    x0[4:] = g.mean(0) - x0[3] * (p @ R).mean(0)
+    best = minimize(mean_err, x0, method="Nelder-Mead",
+                    options={"maxiter": 20000, "xatol": 1e-10, "fatol": 1e-12}).fun
+    assert best <= base[0] + 1e-9
+    assert base[0] == pytest.approx(best, rel=0.1)
+
+
+def test_pa_never_mirrors():
+    gt = gt_dict(np.random.default_rng(4))["joints"]
+    mirrored = gt * np.array([-1.0, 1.0, 1.0])
+    assert np.all(M.pa_mpjpe(mirrored, gt) > 1e-3)
+
+
+def test_nan_groundtruth_is_ignored_and_missing_markers_fall_back():
+    rng = np.random.default_rng(5)
+    gt = gt_dict(rng)
+    pred = gt["joints"].copy()
+    pred[:, JOINT_NAMES.index("head")] += 1.0   # only the head is wrong ...
+    gt["joints"] = gt["joints"].copy()
+    gt["joints"][:, JOINT_NAMES.index("head")] = np.nan  # ... and unobserved
+    gt["markers"] = None
+    m = M.evaluate(result_from(gt, pred), gt)
+    assert m["mean_joint_error_mm"] == 0.0
+    assert m["marker_source"] == "joints" and m["marker_mean_m"] == 0.0
+
+
+def test_joint_subset_and_frame_mapping():
+    rng = np.random.default_rng(6)
+    gt = gt_dict(rng, n=10)
+    pred = gt["joints"][4:7].copy()
+    pred[:, JOINT_NAMES.index("spine_upper")] += 5.0  # not an evaluated joint
+    res = result_from(gt, pred, gt["markers"][4:7])
+    res["frame"] = np.array([4, 5, 6])
+    m = M.evaluate(res, gt)
+    assert m["frames"] == 3 and m["mean_joint_error_mm"] == 0.0
+    res["frame"] = np.array([5, 6, 7])  # shifted by one frame: now it must show an error
+    assert M.evaluate(res, gt)["mean_joint_error_mm"] > 1.0
+    res["frame"] = np.array([8, 9, 10])
+    with pytest.raises(ValueError, match="exceed"):
+        M.evaluate(res, gt)
+
+
+def test_reports(tmp_path):
+    rng = np.random.default_rng(7)
+    gt = gt_dict(rng)
+    pred = gt["joints"] + rng.normal(scale=0.02, size=gt["joints"].shape)
+    m = M.evaluate(result_from(gt, pred), gt)
+    table = report.summary_table(m)
+    assert f"{m['mean_joint_error_mm']:.1f}" in table and "PA-MPJPE" in table
+    report.write_csv(m, tmp_path / "e.csv")
+    rows = list(csv.DictReader(open(tmp_path / "e.csv")))
+    assert len(rows) == N and int(rows[2]["frame"]) == 2
+    assert float(rows[2]["joint_error_mm"]) == pytest.approx(m["per_frame"]["joint_error_mm"][2],
+                                                             rel=1e-5)
+    report.plot_errors(m, tmp_path / "e.png", title="t", fps=30)
+    assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ---- gltrack eval ------------------------------------------------------------------------------
+def make_dataset_and_result(tmp_path, offset, with_gt=True):
+    from gltrack.camera import Camera
+    from gltrack.data.dataset import DatasetWriter
+    from gltrack.data.results import ResultsWriter
+
+    rng = np.random.default_rng(8)
+    gt = gt_dict(rng)
+    c = Camera("cam0", "depth", 8, 6, [[8.0, 0, 3.5], [0, 8.0, 2.5], [0, 0, 1]], np.zeros(5),
+               np.eye(3), np.array([0.0, 0.0, 3.0]))
+    with DatasetWriter(tmp_path / "ds", "depth", 30, [c]) as w:
+        for f in range(N):
+            w.write_depth(f, 0, np.full((6, 8), 2.0))
+        if with_gt:
+            w.write_groundtruth(gt["joints"], gt["joint_names"], gt["markers"], gt["params"],
+                                marker_names=gt["marker_names"])
+    rw = ResultsWriter(tmp_path / "res", "sir", gt["joint_names"], gt["marker_names"])
+    for f in range(N):
+        rw.append(f, gt["params"][f], gt["joints"][f] + offset, gt["markers"][f] + offset,
+                  score=0.0, evaluations=10, seconds=0.1)
+    rw.finish()
+    return tmp_path / "res", tmp_path / "ds"
+
+
+def test_cli_eval_end_to_end(tmp_path, capsys):
+    res, ds = make_dataset_and_result(tmp_path, np.array([0.0, 0.05, 0.0]))
+    j, c, p = tmp_path / "m.json", tmp_path / "m.csv", tmp_path / "m.png"
+    rc = main(["eval", str(res), str(ds), "--json", str(j), "--csv", str(c), "--plot", str(p)])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "50.0" in out and "MPJPE" in out
+    data = json.loads(j.read_text())
+    assert set(M.SUMMARY_KEYS) <= set(data)
+    assert data["mean_joint_error_mm"] == pytest.approx(50.0)
+    assert data["mpjpe_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert data["frac_markers_tracked"] == 1.0 and data["frames"] == N
+    assert len(data["per_frame"]["joint_error_mm"]) == N
+    assert len(c.read_text().splitlines()) == N + 1
+    assert p.stat().st_size > 1000
+    # Without poses.npz (a crashed run) the same numbers come from frames.jsonl.
+    (res / "poses.npz").unlink()
+    assert main(["eval", str(res), str(ds), "--json", str(j)]) == 0
+    assert json.loads(j.read_text())["mean_joint_error_mm"] == pytest.approx(50.0)
+
+
+def test_cli_eval_errors(tmp_path, capsys):
+    res, ds = make_dataset_and_result(tmp_path, 0.0, with_gt=False)
+    assert main(["eval", str(res), str(ds)]) == 1
+    assert "no groundtruth.npz" in capsys.readouterr().err
+    assert main(["eval", str(tmp_path / "missing"), str(ds)]) == 1
+    err = capsys.readouterr().err
+    assert "error:" in err and len(err.strip().splitlines()) == 1
+    assert main(["eval", str(res), str(ds), "--json", str(tmp_path / "a"),
+                 "--csv", str(tmp_path / "a")]) == 2
+    assert main(["eval", str(res)]) == 2
+
+
+def test_marker_thresholds_are_inclusive():
+    gt = np.zeros((1, 4, 3))
+    pred = np.array([[[0.1, 0, 0], [0.3, 0, 0], [0.2, 0, 0], [0.0999, 0, 0]]])
+    e = M.marker_errors(pred, gt)
+    assert e["frac_tracked"][0] == 0.5 and e["frac_failed"][0] == 0.25
+    assert e["mean"][0] == pytest.approx(0.174975) and e["max"][0] == pytest.approx(0.3)
+    gt[0, 1] = np.nan  # an invisible marker is not counted at all
+    e = M.marker_errors(pred, gt)
+    assert e["visible"][0] == 3 and e["frac_failed"][0] == 0.0
