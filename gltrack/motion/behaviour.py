@@ -1,0 +1,314 @@
+"""Behaviour model of Caillette, Galata & Howard (2008): Gaussian motion clusters + VLMM.
+
+Learning (section 4): feature vectors ``X_t = (x_t, dx_t)`` (joint angles and their
+velocities, :mod:`gltrack.motion.features`) from one or more (optionally augmented) pose
+sequences are clustered with the Figueiredo-Jain algorithm (:mod:`gltrack.motion.fjgmm`); every
+frame is labelled with its most probable cluster and a VLMM (:mod:`gltrack.motion.vlmm`) is
+learnt over the label sequences.
+
+Prediction (section 5) for particles carrying a feature vector and a VLMM state:
+
+* eq. 3: the next cluster is drawn with probability proportional to
+  ``N(X_t | mu_k, Sigma_k) * gamma(q_t, k)``;
+* if it is the particle's current cluster, eq. 4 local dynamics with attenuation ``lam``::
+
+      dx_{t+1} = dx_t + lam * n_dx
+      x_{t+1}  = x_t + dx_{t+1} * dt + lam * n_x,      (n_x, n_dx) = sqrt(Sigma_k) z, z ~ N(0, I)
+
+  (velocities are in radians per second here, hence the ``dt``); ``sqrt`` is the symmetric
+  square root by eigendecomposition;
+* otherwise the particle is re-sampled from the new cluster's Gaussian.
+
+The six root parameters are not modelled (the paper propagates them with plain Gaussian
+noise); a caller writes ``X'[:, :n_angles]`` back into ``params[:, 6:]``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import zipfile
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from scipy.special import logsumexp
+
+from . import features as feat
+from .fjgmm import GaussianMixture, fit_fj_gmm, sqrtm_psd
+from .vlmm import Vlmm
+
+log = logging.getLogger(__name__)
+
+FORMAT = "gltrack-behaviour"
+VERSION = 1
+_ARRAYS = ("gmm_weights", "gmm_means", "gmm_covs", "gmm_cost_path", "vlmm_next_dist", "meta")
+
+
+def _as_list(sequences) -> list[np.ndarray]:
+    if isinstance(sequences, np.ndarray) and sequences.ndim == 2:
+        return [sequences]
+    return [np.asarray(s, dtype=np.float64) for s in sequences]
+
+
+@dataclass
+class BehaviourModel:
+    """Motion clusters plus a VLMM over cluster labels.
+
+    Attributes
+    ----------
+    gmm : GaussianMixture over (2 * n_angles)-D feature vectors (radians, radians/second).
+    vlmm : Vlmm whose symbols are the gmm's components.
+    fps : float, frame rate the model was learnt at (sets ``dt`` of the local dynamics).
+    n_angles : int, number of joint angles (D - 6 of the DOF preset).
+    dof_names : tuple of str, names of the modelled angles (may be empty).
+    info : dict, training figures (see :meth:`report`).
+    """
+
+    gmm: GaussianMixture
+    vlmm: Vlmm
+    fps: float
+    n_angles: int
+    dof_names: tuple = ()
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.gmm.dim != 2 * self.n_angles:
+            raise ValueError(f"gmm dimension {self.gmm.dim} != 2 * n_angles ({self.n_angles})")
+        if self.vlmm.n_symbols != self.gmm.n_components:
+            raise ValueError(f"vlmm has {self.vlmm.n_symbols} symbols but the gmm has "
+                             f"{self.gmm.n_components} components")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"fps must be positive, got {self.fps}")
+        if self.dof_names and len(self.dof_names) != self.n_angles:
+            raise ValueError(f"{len(self.dof_names)} dof_names for {self.n_angles} angles")
+        self.dof_names = tuple(str(n) for n in self.dof_names)
+
+    # ------------------------------------------------------------------ learning
+    @classmethod
+    def fit(cls, sequences, fps: float, rng: np.random.Generator, *, held_out=None,
+            holdout: float = 0.2, augment: bool = True, speeds=(0.9, 1.0, 1.1),
+            smoothing=(0.0, 1.0, 2.0), k_max: int = 30, covariance: str = "diag",
+            reg: float = 1e-6, tol: float = 1e-5, max_iter: int = 300, max_memory: int = 10,
+            epsilon: float = 1e-3, min_count: int = 3, gamma: float | None = None,
+            dof_names=()) -> "BehaviourModel":
+        """Learn clusters and VLMM from pose sequences.
+
+        Parameters
+        ----------
+        sequences : (T, D) array or list of them, body parameters at ``fps``.
+        fps : float, frame rate of every sequence.
+        rng : numpy.random.Generator, for the cluster initialisation.
+        held_out : list of (T, D) arrays or None. Sequences for the held-out entropy; if None,
+            the last ``holdout`` fraction of each training sequence is held out instead
+            (and not learnt from). ``holdout=0`` learns from everything.
+        augment : bool, add speed-resampled and smoothed copies of the training part
+            (``speeds``, ``smoothing`` as in :func:`gltrack.motion.features.augment`).
+        k_max, covariance, reg, tol, max_iter : passed to :func:`fit_fj_gmm`. Diagonal
+            covariances are the default because a full one in 2 * n_angles dimensions needs
+            thousands of frames per cluster under the MML criterion.
+        max_memory, epsilon, min_count : passed to :meth:`Vlmm.fit`.
+        gamma : VLMM smoothing probability per symbol; None: ``min(1e-3, 0.1 / K)``.
+        dof_names : names of the modelled angles (``dofs.names[6:]``), stored for reference.
+
+        Returns
+        -------
+        BehaviourModel
+        """
+        seqs = _as_list(sequences)
+        if not seqs:
+            raise ValueError("no training sequences")
+        if held_out is None and holdout > 0:
+            if not 0 < holdout < 1:
+                raise ValueError(f"holdout must be in [0, 1), got {holdout}")
+            train, test = [], []
+            for s in seqs:
+                cut = int(round(len(s) * (1.0 - holdout)))
+                if cut < 2 or len(s) - cut < 1:
+                    raise ValueError(f"sequence of {len(s)} frames too short for holdout")
+                train.append(s[:cut])
+                test.append(s[cut:])
+        else:
+            train, test = seqs, (_as_list(held_out) if held_out is not None else [])
+        if augment:
+            train = [a for s in train for a in feat.augment(s, speeds, smoothing)]
+        train_feats = [feat.motion_features(s, fps) for s in train]
+        n_angles = train_feats[0].shape[1] // 2
+        X = np.concatenate(train_feats, axis=0)
+        gmm = fit_fj_gmm(X, rng, k_max=k_max, tol=tol, reg=reg, max_iter=max_iter,
+                         covariance=covariance)
+        k = gmm.n_components
+        labels = [gmm.predict(f) for f in train_feats]
+        g = min(1e-3, 0.1 / k) if gamma is None else float(gamma)
+        vlmm = Vlmm.fit(labels, k, max_memory=max_memory, epsilon=epsilon,
+                        min_count=min_count, gamma=g)
+        info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels))}
+        if test:
+            test_labels = [gmm.predict(feat.motion_features(s, fps)) for s in test]
+            info["heldout_frames"] = int(sum(len(t) for t in test_labels))
+            info["heldout_entropy"] = float(vlmm.entropy(test_labels))
+        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info)
+        log.info("behaviour model: %s", model.report())
+        return model
+
+    def report(self) -> dict:
+        """Summary figures.
+
+        Returns
+        -------
+        dict with ``n_clusters``, ``n_states``, ``max_memory_used`` (longest state),
+        ``feature_dim``, ``fps``, ``train_frames``, ``train_entropy`` and, when a held-out set
+        was used, ``heldout_frames`` and ``heldout_entropy`` (else None). Entropies are model
+        entropies (eq. 2) in bits per frame.
+        """
+        return {"n_clusters": self.gmm.n_components, "n_states": self.vlmm.n_states,
+                "max_memory_used": int(self.vlmm.depth.max()), "feature_dim": self.gmm.dim,
+                "fps": self.fps, "train_frames": self.info.get("train_frames"),
+                "train_entropy": self.info.get("train_entropy"),
+                "heldout_frames": self.info.get("heldout_frames"),
+                "heldout_entropy": self.info.get("heldout_entropy")}
+
+    # ------------------------------------------------------------------ use
+    def features(self, params) -> np.ndarray:
+        """(T, 2 * n_angles) feature vectors of a (T, D) sequence at the model's fps."""
+        X = feat.motion_features(params, self.fps)
+        if X.shape[1] != self.gmm.dim:
+            raise ValueError(f"params give {X.shape[1] // 2} angles, model has {self.n_angles}")
+        return X
+
+    def label(self, X) -> np.ndarray:
+        """(T,) int64 cluster of each feature vector (T, 2 * n_angles)."""
+        return self.gmm.predict(X)
+
+    def state_for(self, labels) -> int:
+        """VLMM state after a history of cluster labels (oldest first; empty: no history)."""
+        return self.vlmm.initial_state(labels)
+
+    @cached_property
+    def _sqrt_covs(self) -> np.ndarray:
+        return sqrtm_psd(self.gmm.covs)
+
+    def transition_logprob(self, X, states) -> np.ndarray:
+        """Eq. 3: (N, K) normalised log P(k_{t+1} | X_t, q_t) for X (N, d), states (N,)."""
+        X = np.asarray(X, dtype=np.float64)
+        states = np.asarray(states, dtype=np.int64)
+        lp = self.gmm.logpdf_components(X) + np.log(self.vlmm.next_distribution(states))
+        return lp - logsumexp(lp, axis=1, keepdims=True)
+
+    def predict(self, rng: np.random.Generator, X, states, lam: float = 0.5,
+                dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Propagate particles one frame (eqs. 3 and 4, see module docstring).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+        X : (N, 2 * n_angles) float array, current feature vectors (radians, radians/second).
+        states : (N,) int array, current VLMM states (0 = no history; the current cluster is
+            then taken as the most probable one for X).
+        lam : float, noise attenuation of the local dynamics.
+        dt : float or None, time step in seconds (None: 1 / fps).
+
+        Returns
+        -------
+        X_new : (N, 2 * n_angles) float64.
+        states_new : (N,) int64.
+        """
+        X = np.asarray(X, dtype=np.float64)
+        if X.ndim != 2 or X.shape[1] != self.gmm.dim:
+            raise ValueError(f"X must have shape (N, {self.gmm.dim}), got {X.shape}")
+        states = np.asarray(states, dtype=np.int64).reshape(-1)
+        if states.shape[0] != X.shape[0]:
+            raise ValueError(f"{states.shape[0]} states for {X.shape[0]} particles")
+        if np.any((states < 0) | (states >= self.vlmm.n_states)):
+            raise ValueError("states out of range")
+        dt = 1.0 / self.fps if dt is None else float(dt)
+        n, a = X.shape[0], self.n_angles
+
+        p = np.exp(self.transition_logprob(X, states))
+        cdf = np.cumsum(p, axis=1)
+        u = rng.random(n)[:, None] * cdf[:, -1:]
+        nxt = np.minimum(np.sum(cdf <= u, axis=1), self.gmm.n_components - 1)
+
+        cur = self.vlmm.last_symbol[states].copy()
+        fresh = cur < 0
+        if np.any(fresh):
+            cur[fresh] = self.gmm.predict(X[fresh])
+        same = nxt == cur
+        z = rng.standard_normal((n, 2 * a))
+        roots = self._sqrt_covs
+        noise = np.einsum("nij,nj->ni", roots[nxt], z)
+
+        out = np.empty_like(X)
+        dx_new = X[same, a:] + lam * noise[same, a:]
+        out[same, a:] = dx_new
+        out[same, :a] = X[same, :a] + dx_new * dt + lam * noise[same, :a]
+        jump = ~same
+        out[jump] = self.gmm.means[nxt[jump]] + noise[jump]
+        return out, self.vlmm.step(states, nxt).astype(np.int64)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write the model as an .npz (no pickles) to exactly ``path``."""
+        meta = {"format": FORMAT, "version": VERSION, "fps": self.fps, "n_angles": self.n_angles,
+                "dof_names": list(self.dof_names), "vlmm": self.vlmm.tree_dict(),
+                "info": self.info}
+        with open(path, "wb") as f:
+            np.savez(f, gmm_weights=self.gmm.weights, gmm_means=self.gmm.means,
+                     gmm_covs=self.gmm.covs, gmm_cost_path=self.gmm.cost_path,
+                     vlmm_next_dist=self.vlmm.next_dist, meta=np.array(json.dumps(meta)))
+
+    @classmethod
+    def load(cls, path) -> "BehaviourModel":
+        """Read a model written by :meth:`save`; ValueError naming the file and field if invalid."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in _ARRAYS if k not in z.files]
+                if missing:
+                    raise ValueError(f"{path}: missing field {missing[0]!r}")
+                arrays = {k: z[k] for k in _ARRAYS}
+        except (OSError, zipfile.BadZipFile, EOFError) as e:
+            raise ValueError(f"{path}: not a readable .npz file ({e})") from None
+        except ValueError as e:
+            if str(e).startswith(str(path)):
+                raise
+            raise ValueError(f"{path}: unreadable field ({e})") from None
+
+        m = arrays["meta"]
+        if m.dtype.kind != "U" or m.ndim != 0:
+            raise ValueError(f"{path}: field 'meta' must be a JSON string")
+        try:
+            meta = json.loads(str(m))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: field 'meta' is not valid JSON ({e})") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise ValueError(f"{path}: field 'meta.format' must be {FORMAT!r}")
+        if meta.get("version") != VERSION:
+            raise ValueError(f"{path}: field 'meta.version' {meta.get('version')!r} unsupported")
+        for k in _ARRAYS[:-1]:
+            if arrays[k].dtype.kind not in "fi":
+                raise ValueError(f"{path}: field {k!r} must be numeric, got {arrays[k].dtype}")
+        try:
+            gmm = GaussianMixture(arrays["gmm_weights"], arrays["gmm_means"], arrays["gmm_covs"],
+                                  arrays["gmm_cost_path"])
+        except ValueError as e:
+            raise ValueError(f"{path}: fields 'gmm_*': {e}") from None
+        try:
+            vlmm = Vlmm.from_tree(meta.get("vlmm"), arrays["vlmm_next_dist"])
+        except ValueError as e:
+            raise ValueError(f"{path}: fields 'meta.vlmm'/'vlmm_next_dist': {e}") from None
+        fps, n_angles = meta.get("fps"), meta.get("n_angles")
+        if not isinstance(fps, (int, float)) or isinstance(fps, bool) or not fps > 0:
+            raise ValueError(f"{path}: field 'meta.fps' must be a positive number")
+        if not isinstance(n_angles, int) or isinstance(n_angles, bool) or n_angles < 1:
+            raise ValueError(f"{path}: field 'meta.n_angles' must be a positive integer")
+        names = meta.get("dof_names", [])
+        if not isinstance(names, list) or not all(isinstance(s, str) for s in names):
+            raise ValueError(f"{path}: field 'meta.dof_names' must be a list of strings")
+        info = meta.get("info", {})
+        if not isinstance(info, dict):
+            raise ValueError(f"{path}: field 'meta.info' must be an object")
+        try:
+            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info)
+        except ValueError as e:
+            raise ValueError(f"{path}: field 'meta': {e}") from None

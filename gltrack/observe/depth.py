@@ -1,0 +1,66 @@
+"""Depth observations: background removal and foreground isolation for the depth tracker.
+
+The engine's depth cost (``shaders/costs.glsl``) charges every observed pixel the model does not
+explain, so the floor, walls and furniture must be removed first. With an empty-scene depth frame
+(``cam0_background.png``) a pixel is background when it lies within ``tolerance`` of the empty
+scene (or behind it); without one, only pixels farther than ``max_depth`` are dropped and, when a
+floor plane is given, pixels within ``floor_tolerance`` of it.
+"""
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def remove_background(depth, background=None, *, tolerance: float = 0.08, max_depth: float = 8.0,
+                      min_blob: int = 20) -> np.ndarray:
+    """Keep only the foreground of a depth image.
+
+    Parameters
+    ----------
+    depth : (H, W) float, metres, 0 = invalid
+    background : (H, W) float, metres, optional
+        Empty-scene depth (0 = unknown there).
+    tolerance : float, metres
+        Pixels closer than ``background - tolerance`` are foreground. 8 cm: several times the
+        ToF noise at 3 m, well below a body's thickness.
+    max_depth : float, metres
+    min_blob : int, pixels
+        Connected foreground regions smaller than this are dropped (flying pixels, speckle).
+
+    Returns
+    -------
+    (H, W) float32, metres; 0 where background or invalid.
+    """
+    z = np.asarray(depth, dtype=np.float32)
+    valid = np.isfinite(z) & (z > 0) & (z < max_depth)
+    if background is not None:
+        bg = np.asarray(background, dtype=np.float32)
+        if bg.shape != z.shape:
+            raise ValueError(f"background depth is {bg.shape}, observation is {z.shape}")
+        known = bg > 0
+        valid &= ~known | (z < bg - tolerance)
+    mask = valid.astype(np.uint8)
+    if min_blob > 1 and mask.any():
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        keep = np.zeros(n, bool)
+        keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_blob
+        mask = keep[labels]
+    return np.where(mask, z, 0).astype(np.float32)
+
+
+def foreground_points(depth, camera) -> np.ndarray:
+    """(P, 3) world points of the valid pixels of a depth image, metres."""
+    z = np.asarray(depth, dtype=np.float64)
+    v, u = np.nonzero(z > 0)
+    if len(u) == 0:
+        return np.zeros((0, 3))
+    zz = z[v, u]
+    x = (u - camera.cx) / camera.fx * zz
+    y = (v - camera.cy) / camera.fy * zz
+    cam_pts = np.stack([x, y, zz], axis=1)
+    return (cam_pts - camera.t) @ camera.R  # R^T (p - t)

@@ -1,0 +1,379 @@
+"""VLMM learning and entropy, motion features, and the behaviour model (clusters + VLMM)."""
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gltrack.motion import features as feat
+from gltrack.motion.behaviour import BehaviourModel
+from gltrack.motion.vlmm import Vlmm
+
+
+def _shared():
+    env = os.environ.get("GLTRACK_SHARED")
+    for cand in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared"]:
+        if cand.is_dir():
+            return cand
+    pytest.skip("../shared (or GLTRACK_SHARED) is absent: mocap test skipped")
+
+
+# ---------------------------------------------------------------- Markov sources
+def generate(table, n, rng, order):
+    """Sample n symbols from an order-`order` source: table[history tuple] -> (K,) probs."""
+    k = next(iter(table.values())).size
+    s = list(rng.integers(0, k, order))
+    u = rng.random(n)
+    for i in range(n - order):
+        p = table[tuple(s[len(s) - order:])]
+        s.append(min(int(np.searchsorted(np.cumsum(p), u[i], side="right")), k - 1))
+    return np.array(s, dtype=np.int64)
+
+
+def entropy_rate(table, order, k, base=2.0):
+    """Exact entropy rate of a Markov source via the stationary law of its histories."""
+    hist = list(table)
+    idx = {h: i for i, h in enumerate(hist)}
+    T = np.zeros((len(hist), len(hist)))
+    for h in hist:
+        for c in range(k):
+            T[idx[h], idx[h[1:] + (c,)]] += table[h][c]
+    w, v = np.linalg.eig(T.T)
+    pi = np.real(v[:, np.argmin(np.abs(w - 1))])
+    pi /= pi.sum()
+    return -sum(pi[idx[h]] * np.sum(table[h] * np.log(table[h])) for h in hist) / np.log(base)
+
+
+def order2_table(rng, k=3):
+    return {(a, b): rng.dirichlet(np.full(k, 0.7)) for a in range(k) for b in range(k)}
+
+
+@pytest.fixture(scope="module")
+def order2():
+    rng = np.random.default_rng(0)
+    table = order2_table(rng)
+    train = generate(table, 20000, np.random.default_rng(1), 2)
+    test = generate(table, 20000, np.random.default_rng(2), 2)
+    return table, train, test, Vlmm.fit([train], 3, max_memory=6, epsilon=1e-3)
+
+
+def test_learns_order2_source(order2):
+    table, train, test, v = order2
+    for (a, b), p in table.items():
+        q = v.initial_state([a, b])
+        np.testing.assert_allclose(v.next_distribution(q), p, atol=0.04)
+    assert v.depth.max() == 2  # memory 6 allowed, only 2 needed
+
+
+def test_entropy_near_source_rate(order2):
+    table, train, test, v = order2
+    h = entropy_rate(table, 2, 3)
+    h_train, h_test = v.entropy([train]), v.entropy([test])
+    assert abs(h_test - h) < 0.03
+    assert h_train <= h_test + 0.01  # no better on unseen data than on training data
+    # a model with no memory is measurably worse than the learnt one
+    v0 = Vlmm.fit([train], 3, max_memory=0)
+    assert v0.n_states == 1
+    assert v0.entropy([test]) > h_test + 0.05
+    # the per-symbol entropy is the mean of -log2 P(k_i | q_i) computed independently
+    q = v.states_along(test)
+    np.testing.assert_allclose(h_test, -np.mean(np.log2(v.next_dist[q, test])), rtol=1e-12)
+
+
+def test_order1_source_gives_depth1_contexts():
+    rng = np.random.default_rng(3)
+    k = 4
+    table = {(a,): rng.dirichlet(np.full(k, 0.7)) for a in range(k)}
+    x = generate(table, 20000, np.random.default_rng(4), 1)
+    v = Vlmm.fit([x], k, max_memory=8, epsilon=1e-3)
+    assert v.depth.max() == 1
+    assert v.n_states == 1 + k
+    for (a,), p in table.items():
+        np.testing.assert_allclose(v.next_distribution(v.initial_state([2, a])), p, atol=0.03)
+
+
+def test_memory_grows_only_where_needed():
+    """After symbol 0 the next symbol depends on the one before it; elsewhere only on the last."""
+    rng = np.random.default_rng(5)
+    k = 3
+    first = {b: rng.dirichlet(np.full(k, 1.0)) for b in range(1, k)}
+    after0 = {a: np.eye(k)[(a + 1) % k] * 0.8 + 0.2 / k for a in range(k)}
+    table = {(a, b): (after0[a] if b == 0 else first[b]) for a in range(k) for b in range(k)}
+    x = generate(table, 30000, np.random.default_rng(6), 2)
+    v = Vlmm.fit([x], k, max_memory=5, epsilon=2e-3)
+    deep = [s for s, d in zip(v.states, v.depth) if d >= 2 and v.learnt[v.index[s]]]
+    assert deep, "the order-2 dependency after symbol 0 was not found"
+    assert all(s[-1] == 0 for s in deep)
+    assert v.depth.max() == 2
+    for a in range(k):
+        np.testing.assert_allclose(v.next_distribution(v.initial_state([a, 0])), after0[a],
+                                   atol=0.04)
+
+
+def test_finds_dependency_invisible_at_depth1():
+    """x_t = x_{t-1} xor x_{t-2} (with noise): every depth-1 context predicts 50/50."""
+    rng = np.random.default_rng(7)
+    x = [0, 1]
+    for _ in range(20000):
+        x.append((x[-1] ^ x[-2]) if rng.random() < 0.9 else 1 - (x[-1] ^ x[-2]))
+    v = Vlmm.fit([np.array(x)], 2, max_memory=4, epsilon=1e-3)
+    assert v.depth.max() == 2
+    np.testing.assert_allclose(v.next_distribution(v.initial_state([1, 1]))[0], 0.9, atol=0.02)
+    np.testing.assert_allclose(v.next_distribution(v.initial_state([1, 0]))[1], 0.9, atol=0.02)
+
+
+def test_larger_epsilon_fewer_states(order2):
+    _, train, _, _ = order2
+    counts = [Vlmm.fit([train], 3, max_memory=6, epsilon=e).n_states
+              for e in (1e-5, 1e-4, 1e-3, 3e-2, 1.0)]
+    assert all(a >= b for a, b in zip(counts, counts[1:]))
+    assert counts[0] > counts[2] and counts[-1] == 1
+
+
+def test_automaton_state_is_longest_suffix_of_history(order2):
+    """step() through the PFSA equals a direct longest-suffix search over the whole history."""
+    _, _, test, _ = order2
+    _, train, _, _ = order2
+    v = Vlmm.fit([train], 3, max_memory=6, epsilon=1e-4)  # deeper, irregular tree
+    assert v.depth.max() >= 3
+    states = set(v.states)
+    q = v.initial_state([])
+    for t in range(400):
+        h = tuple(int(s) for s in test[:t])
+        ref = next(h[i:] for i in range(len(h) + 1) if h[i:] in states)
+        assert v.states[q] == ref
+        assert q == v.initial_state(test[:t])
+        q = v.step(q, test[t])
+
+
+def test_sample_reproduces_the_model(order2):
+    table, _, _, v = order2
+    a = v.sample(np.random.default_rng(8), 30000)
+    b = v.sample(np.random.default_rng(8), 30000)
+    np.testing.assert_array_equal(a, b)
+    # order-2 transition frequencies of the generated symbols match the source
+    for (x0, x1), p in table.items():
+        m = (a[:-2] == x0) & (a[1:-1] == x1)
+        freq = np.bincount(a[2:][m], minlength=3) / m.sum()
+        np.testing.assert_allclose(freq, p, atol=0.05)
+
+
+def test_vlmm_tree_roundtrip_and_validation(order2):
+    v = order2[3]
+    tree = json.loads(json.dumps(v.tree_dict()))
+    w = Vlmm.from_tree(tree, v.next_dist)
+    assert w.states == v.states
+    np.testing.assert_array_equal(w.trans, v.trans)
+    bad = dict(tree, states=tree["states"][:-1] + [[0, 1, 2, 0, 1, 2, 0, 1]])
+    with pytest.raises(ValueError, match="longer than max_memory"):
+        Vlmm.from_tree(bad, v.next_dist)
+    bad = dict(tree, states=tree["states"][:-1] + [[2, 2, 2, 2, 1]])  # suffixes missing
+    with pytest.raises(ValueError, match="not closed"):
+        Vlmm.from_tree(bad, v.next_dist)
+    with pytest.raises(ValueError, match="next_dist"):
+        Vlmm.from_tree(tree, v.next_dist[:, :2])
+    with pytest.raises(ValueError):
+        Vlmm.fit([np.array([0, 1, 5])], 3)
+    with pytest.raises(ValueError):
+        Vlmm.fit([np.array([0, 1, 2])], 3, gamma=0.5)
+
+
+# ---------------------------------------------------------------- features
+def test_features_angles_and_velocities():
+    t = np.arange(60) / 30.0
+    params = np.zeros((60, 9))
+    params[:, 0] = t  # root translation must be ignored
+    params[:, 6] = 0.5 * np.sin(2 * np.pi * t)
+    params[:, 7] = 2.0 * t
+    X = feat.motion_features(params, 30.0)
+    assert X.shape == (60, 6)
+    np.testing.assert_allclose(X[:, :3], params[:, 6:])
+    np.testing.assert_allclose(X[1:-1, 4], 2.0, rtol=1e-12)
+    w, h = 2 * np.pi, 1 / 30.0  # central difference of a sine: exact up to sin(wh)/(wh)
+    np.testing.assert_allclose(X[1:-1, 3], 0.5 * w * np.cos(w * t[1:-1]) * np.sin(w * h) / (w * h),
+                               atol=1e-12)
+    # the same motion sampled at 60 fps has the same velocities per second
+    p60 = np.zeros((119, 9))
+    p60[:, 7] = 2.0 * np.arange(119) / 60.0
+    np.testing.assert_allclose(feat.motion_features(p60, 60.0)[:, 4], 2.0, rtol=1e-9)
+
+
+def test_features_unwrap_angle_jumps():
+    a = np.linspace(3.0, 3.3, 10)
+    params = np.zeros((10, 7))
+    params[:, 6] = np.angle(np.exp(1j * a))  # wraps from +pi to -pi mid-sequence
+    X = feat.motion_features(params, 10.0)
+    np.testing.assert_allclose(X[:, 1], 0.3 / 9 * 10.0, rtol=1e-9)
+
+
+def test_augment_speeds_and_smoothing():
+    params = np.zeros((101, 8))
+    params[:, 6] = np.linspace(0.0, 1.0, 101)
+    params[:, 7] = (np.arange(101) % 2) * 0.1  # frame-rate jitter
+    out = feat.augment(params, speeds=(0.5, 1.0, 2.0), smoothing=(0.0, 2.0))
+    assert [len(o) for o in out] == [201, 201, 101, 101, 51, 51]
+    np.testing.assert_allclose(out[0][:, 6], np.linspace(0.0, 1.0, 201), atol=1e-12)
+    assert np.ptp(out[3][10:-10, 7]) < 0.2 * np.ptp(out[2][10:-10, 7])  # smoothing works
+    np.testing.assert_allclose(out[3][10:-10, 6], out[2][10:-10, 6], atol=1e-9)  # linear kept
+
+
+# ---------------------------------------------------------------- behaviour model
+def synthetic_motion(rng, n_cycles, fps=30.0, period=1.2, n_angles=4):
+    """Periodic 'walk' angles with a pause every third cycle (needs memory to predict)."""
+    frames = []
+    for c in range(n_cycles):
+        t = np.arange(int(period * fps)) / fps
+        ph = 2 * np.pi * t / period
+        a = np.stack([0.6 * np.sin(ph + j) for j in range(n_angles)], axis=1)
+        frames.append(a)
+        if c % 3 == 2:
+            frames.append(np.repeat(a[-1:], int(0.5 * fps), axis=0))
+    ang = np.concatenate(frames) + rng.normal(0, 0.01, (sum(len(f) for f in frames), n_angles))
+    params = np.zeros((len(ang), 6 + n_angles))
+    params[:, 6:] = ang
+    params[:, 2] = np.arange(len(ang)) * 0.04  # root moves; must not matter
+    return params
+
+
+@pytest.fixture(scope="module")
+def synth_model():
+    params = synthetic_motion(np.random.default_rng(0), 24)
+    return params, BehaviourModel.fit(params, 30.0, np.random.default_rng(1), k_max=20,
+                                      max_memory=6, epsilon=1e-3,
+                                      dof_names=("a", "b", "c", "d"))
+
+
+def test_behaviour_fit_report(synth_model):
+    params, m = synth_model
+    r = m.report()
+    assert 2 <= r["n_clusters"] <= 20
+    assert r["n_states"] >= r["n_clusters"] + 1
+    assert r["feature_dim"] == 8
+    assert 0 < r["train_entropy"] < np.log2(r["n_clusters"])
+    assert np.isfinite(r["heldout_entropy"]) and r["heldout_frames"] > 0
+    labels = m.label(m.features(params))
+    assert len(np.unique(labels)) >= 2
+
+
+def test_behaviour_predict_local_dynamics_and_jumps(synth_model):
+    params, m = synth_model
+    X = m.features(params)
+    labels = m.label(X)
+    states = np.array([m.state_for(labels[max(0, i - 6):i + 1]) for i in range(len(X))])
+    rng = np.random.default_rng(2)
+    Xn, sn = m.predict(rng, X, states, lam=0.0)
+    Xn2, sn2 = m.predict(np.random.default_rng(2), X, states, lam=0.0)
+    np.testing.assert_array_equal(Xn, Xn2)
+    cur = m.vlmm.last_symbol[states]
+    nxt = m.vlmm.last_symbol[sn]
+    same = nxt == cur
+    assert same.mean() > 0.5  # clusters span several frames
+    # lam = 0: deterministic constant-velocity step x + dx / fps inside a cluster
+    np.testing.assert_allclose(Xn[same, :4], X[same, :4] + X[same, 4:] / 30.0, atol=1e-12)
+    np.testing.assert_allclose(Xn[same, 4:], X[same, 4:], atol=1e-12)
+    # a cluster change re-samples from the new cluster: close to its mean in Mahalanobis terms
+    if np.any(~same):
+        lp = m.gmm.logpdf_components(Xn[~same])
+        assert np.all(np.argmax(lp, axis=1) == nxt[~same]) or np.mean(
+            np.argmax(lp, axis=1) == nxt[~same]) > 0.8
+    np.testing.assert_array_equal(sn, m.vlmm.step(states, nxt))
+    # with noise the prediction changes, with the cluster covariance's scale
+    Xl, _ = m.predict(np.random.default_rng(2), X, states, lam=1.0)
+    d = (Xl - Xn)[same]
+    assert np.all(np.abs(d).max(axis=0) > 0)
+    # the predicted next frame is close to the true next frame for most particles
+    err = np.linalg.norm(Xn[:-1, :4] - X[1:, :4], axis=1)
+    assert np.median(err) < 0.05
+
+
+def test_transition_probabilities_eq3(synth_model):
+    _, m = synth_model
+    X, lab = m.gmm.sample(np.random.default_rng(3), 50)
+    states = np.array([m.state_for([k]) for k in lab])
+    lp = m.transition_logprob(X, states)
+    ref = m.gmm.logpdf_components(X) + np.log(m.vlmm.next_dist[states])
+    ref = np.exp(ref - ref.max(axis=1, keepdims=True))
+    np.testing.assert_allclose(np.exp(lp), ref / ref.sum(axis=1, keepdims=True), rtol=1e-9,
+                               atol=1e-300)
+
+
+def test_behaviour_save_load_roundtrip(synth_model, tmp_path):
+    params, m = synth_model
+    path = tmp_path / "model.npz"
+    m.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        assert "meta" in z.files
+    m2 = BehaviourModel.load(path)
+    assert m2.report() == m.report()
+    assert m2.dof_names == ("a", "b", "c", "d")
+    X = m.features(params[:50])
+    s = np.zeros(50, dtype=int)
+    a = m.predict(np.random.default_rng(4), X, s)
+    b = m2.predict(np.random.default_rng(4), X, s)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def _rewrite(src, dst, **changes):
+    with np.load(src, allow_pickle=False) as z:
+        d = {k: z[k] for k in z.files}
+    d.update(changes)
+    d = {k: v for k, v in d.items() if v is not None}
+    with open(dst, "wb") as f:
+        np.savez(f, **d)
+
+
+def test_behaviour_load_rejects_bad_files(synth_model, tmp_path):
+    _, m = synth_model
+    good = tmp_path / "good.npz"
+    m.save(good)
+    with np.load(good, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        covs = z["gmm_covs"]
+        nd = z["vlmm_next_dist"]
+    cases = {
+        "gmm_covs": dict(gmm_covs=-covs),
+        "gmm_means": dict(gmm_means=None),
+        "vlmm_next_dist": dict(vlmm_next_dist=nd[:, :-1]),
+        "meta": dict(meta=np.array("{not json")),
+        "meta.fps": dict(meta=np.array(json.dumps(dict(meta, fps=-1)))),
+        "meta.format": dict(meta=np.array(json.dumps(dict(meta, format="other")))),
+        "meta.vlmm": dict(meta=np.array(json.dumps(dict(meta, vlmm={"states": "x"})))),
+    }
+    for field, change in cases.items():
+        bad = tmp_path / f"bad_{field}.npz"
+        _rewrite(good, bad, **change)
+        with pytest.raises(ValueError) as e:
+            BehaviourModel.load(bad)
+        msg = str(e.value)
+        assert str(bad) in msg and field.split(".")[0].split("_")[0] in msg, msg
+    obj = tmp_path / "pickled.npz"
+    _rewrite(good, obj, meta=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(ValueError, match="pickled.npz"):
+        BehaviourModel.load(obj)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="junk.npz"):
+        BehaviourModel.load(junk)
+
+
+def test_behaviour_from_cmu_walk():
+    shared = _shared()
+    clip = shared / "mocap" / "cmu_02_01_walk.bvh"
+    if not clip.is_file():
+        pytest.skip(f"{clip} is absent")
+    retarget = pytest.importorskip("gltrack.motion.retarget")
+    if not hasattr(retarget, "load_motion"):
+        pytest.skip("gltrack.motion.retarget.load_motion is not available yet")
+    _, dofs, params, fps = retarget.load_motion(clip, preset="full", fps=30)
+    assert fps == 30
+    m = BehaviourModel.fit(params, fps, np.random.default_rng(0), max_memory=5,
+                           speeds=(0.8, 0.9, 1.0, 1.1, 1.2), dof_names=dofs.names[6:])
+    r = m.report()
+    assert 2 <= r["n_clusters"] <= 40
+    assert np.isfinite(r["train_entropy"]) and np.isfinite(r["heldout_entropy"])
+    assert r["heldout_frames"] == len(params) - int(round(0.8 * len(params)))
+    X = m.features(params)
+    Xn, sn = m.predict(np.random.default_rng(1), X, np.zeros(len(X), dtype=int), lam=0.5)
+    assert np.all(np.isfinite(Xn)) and np.all(sn >= 0)

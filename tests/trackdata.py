@@ -1,0 +1,39 @@
+"""Small synthetic datasets for tracker tests, rendered with the CPU reference (not the engine)."""
+import numpy as np
+
+from gltrack.body.model import BodyModel, body_to_meta
+from gltrack.camera import depth_camera_sr4000
+from gltrack.data.dataset import DatasetWriter
+from gltrack.render import reference as ref
+
+
+def smooth_motion(body, n, rng, fps=30.0):
+    """A slow walk forward with an arm raise and knee bends: (n, D) params."""
+    d, sk = body.dofs, body.skeleton
+    t = np.arange(n) / fps
+    P = np.repeat(d.zero(sk)[None], n, axis=0)
+    P[:, 2] += 0.3 * t
+    P[:, 0] += 0.1 * np.sin(t)
+    P[:, d.index("pelvis_ry")] = 0.3 * np.sin(1.5 * t)
+    P[:, d.index("l_shoulder_rz")] = -1.2 + 0.9 * np.clip(t, 0, 1)
+    P[:, d.index("r_shoulder_rz")] = 1.2
+    P[:, d.index("l_elbow_ry")] = -0.4 - 0.3 * np.sin(2 * t)
+    P[:, d.index("l_hip_rx")] = -0.4 * np.sin(4 * t)
+    P[:, d.index("r_hip_rx")] = 0.4 * np.sin(4 * t)
+    P[:, d.index("l_knee_rx")] = 0.3 + 0.3 * np.sin(4 * t)
+    P[:, d.index("r_knee_rx")] = 0.3 - 0.3 * np.sin(4 * t)
+    return d.validate(P)
+
+
+def make_depth_dataset(out, n=8, seed=0, noise=0.005):
+    rng = np.random.default_rng(seed)
+    body = BodyModel.build()
+    P = smooth_motion(body, n, rng)
+    cam = depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
+    z, _ = ref.render_candidates(body.mesh, body.skinning(P), cam.K, cam.R, cam.t, cam.width, cam.height)
+    with DatasetWriter(out, "depth", 30.0, [cam], body=body_to_meta(body.skeleton)) as w:
+        for f in range(n):
+            zf = z[f] + rng.normal(size=z[f].shape) * noise * (z[f] > 0)
+            w.write_depth(f, 0, zf)
+        w.write_groundtruth(body.joints(P), list(body.skeleton.names), body.marker_positions(P), P)
+    return body, P
