@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Create or reuse the virtual environment, install gltrack and, when missing, the system GL libraries.
+# Sourced by scripts/demo.sh and scripts/test.sh; sets $PY to the environment's python.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${GLTRACK_VENV:-$ROOT/.venv}"
+GL_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgl1"
+
+have_gl_libs() {
+    ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' &&
+    ldconfig -p 2>/dev/null | grep -q 'libEGL_mesa.so.0' &&
+    ldconfig -p 2>/dev/null | grep -q 'libgbm.so.1' &&
+    ldconfig -p 2>/dev/null | grep -q 'libGL.so.1'
+}
+
+if ! have_gl_libs; then
+    if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+        echo "gltrack setup: installing system GL libraries: $GL_PACKAGES"
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $GL_PACKAGES >/dev/null
+    else
+        echo "gltrack setup: the Mesa EGL libraries are missing. Install them, e.g.:" >&2
+        echo "    sudo apt-get install $GL_PACKAGES" >&2
+        exit 1
+    fi
+fi
+
+PYTHON="${PYTHON:-python3}"
+if ! "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 10))' 2>/dev/null; then
+    echo "gltrack setup: Python >= 3.10 is required ($PYTHON is $("$PYTHON" --version 2>&1))" >&2
+    exit 1
+fi
+if [ ! -x "$VENV/bin/python" ]; then
+    echo "gltrack setup: creating virtual environment $VENV"
+    "$PYTHON" -m venv "$VENV"
+fi
+PY="$VENV/bin/python"
+# Reinstall only when pyproject.toml changed since the last install.
+STAMP="$VENV/.gltrack-installed"
+if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
+    echo "gltrack setup: installing gltrack and its dependencies into $VENV"
+    "$PY" -m pip install -q --upgrade pip >/dev/null
+    "$PY" -m pip install -q -e "$ROOT[test]"
+    touch "$STAMP"
+fi
+export PY
