@@ -1,0 +1,104 @@
+"""The depth tracker end to end through the CLI: track, evaluate, resume after a kill."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gltrack.cli import main
+from gltrack.data.results import load_results
+from gltrack.eval.metrics import evaluate
+
+sys.path.insert(0, str(Path(__file__).parent))
+from trackdata import make_depth_dataset  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def depth_ds(tmp_path_factory):
+    out = tmp_path_factory.mktemp("depth") / "ds"
+    make_depth_dataset(out, n=12)
+    return out
+
+
+def _metrics(res, ds):
+    from gltrack.data.dataset import Dataset
+
+    return evaluate(load_results(res), Dataset.open(ds).groundtruth())
+
+
+def test_hc_tracks_and_beats_a_frozen_pose(depth_ds, tmp_path):
+    out = tmp_path / "hc"
+    assert main(["-q", "track", str(depth_ds), "--method", "hc", "--out", str(out)]) == 0
+    for name in ("poses.npz", "poses.bvh", "timing.json", "frames.jsonl"):
+        assert (out / name).is_file(), name
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["frames"] == 12 and timing["evaluations"] > 12 * 100
+    m = _metrics(out, depth_ds)
+    assert m["mean_joint_error_mm"] < 40
+    assert m["frac_markers_failed"] == 0.0
+    # The same run with the pose frozen at frame 0 is clearly worse: tracking did something.
+    res = load_results(out)
+    frozen = dict(res)
+    frozen["joints"] = np.repeat(res["joints"][:1], len(res["joints"]), axis=0)
+    frozen["markers"] = np.repeat(res["markers"][:1], len(res["markers"]), axis=0)
+    from gltrack.data.dataset import Dataset
+
+    m0 = evaluate(frozen, Dataset.open(depth_ds).groundtruth())
+    assert m["mean_joint_error_mm"] < 0.7 * m0["mean_joint_error_mm"]
+    assert main(["eval", str(out), str(depth_ds), "--json", str(tmp_path / "m.json")]) == 0
+    keys = json.loads((tmp_path / "m.json").read_text())
+    assert {"mean_joint_error_mm", "mpjpe_mm", "pa_mpjpe_mm", "marker_mean_m", "marker_max_m",
+            "frac_markers_tracked", "frac_markers_failed", "frames"} <= set(keys)
+
+
+def test_auto_init_finds_the_body(depth_ds, tmp_path):
+    out = tmp_path / "auto"
+    assert main(["-q", "track", str(depth_ds), "--method", "hc", "--out", str(out), "--init", "auto",
+                 "--frames", "0:3"]) == 0
+    m = _metrics(out, depth_ds)
+    assert m["frames"] == 3
+    assert m["mean_joint_error_mm"] < 150, m  # the pose is found, not only the position
+
+
+def test_options_are_validated(depth_ds, tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("tile = 64\nno_such_option = 3\n")
+    rc = main(["track", str(depth_ds), "--method", "hc", "--out", str(tmp_path / "x"), "--config", str(cfg)])
+    assert rc == 1
+    assert "no_such_option" in capsys.readouterr().err
+    assert main(["track", str(depth_ds), "--method", "hc", "--out", str(tmp_path / "y"),
+                 "--frames", "bad"]) == 2
+    assert main(["track", str(tmp_path / "missing"), "--method", "hc", "--out", str(tmp_path / "z")]) == 1
+
+
+def test_resume_after_kill_loses_no_frame(tmp_path):
+    ds = tmp_path / "ds"
+    make_depth_dataset(ds, n=40)
+    out = tmp_path / "res"
+    cmd = [sys.executable, "-m", "gltrack", "-q", "track", str(ds), "--method", "hc", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    log = out / "frames.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if log.is_file() and len(log.read_text().splitlines()) >= 4:
+            break
+        if proc.poll() is not None:
+            pytest.fail(f"tracker exited early: {proc.stderr.read().decode()}")
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = [json.loads(line) for line in log.read_text().splitlines() if line.strip().endswith("}")]
+    assert 4 <= len(before) < 40, "the run must have been killed part-way"
+    assert not (out / "poses.npz").exists()
+    rc = subprocess.run(cmd + ["--resume"], capture_output=True, timeout=300)
+    assert rc.returncode == 0, rc.stderr.decode()
+    after = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [r["frame"] for r in after] == list(range(40))
+    for a, b in zip(before, after):
+        assert a == b, "finished frames must survive unchanged"
+    assert load_results(out)["params"].shape[0] == 40
