@@ -73,8 +73,8 @@ def _bound_rate(ctx, eng, n, repeats):
         for b in batches:
             cb, rb = _grid_for(b, eng.max_tiles_side)
             for v in eng.views:
-                t["fbo"].use()
-                t["fbo"].clear(depth=1.0)
+                t["fbo_z"].use()
+                t["fbo_z"].clear(depth=1.0)
                 ctx.enable(moderngl.DEPTH_TEST)
                 prog["view"].write(v.view.T.copy().tobytes())
                 proj = np.asarray(v.cam_tile.gl_projection(eng.near, eng.far), np.float32)

@@ -182,12 +182,16 @@ class ScoringEngine:
         self._vbo_j = ctx.buffer(m.joints.astype("i4").tobytes())
         self._vbo_w = ctx.buffer(m.weights.astype("f4").tobytes())
         self._ibo = ctx.buffer(m.faces.astype("i4").tobytes())
-        self._prog_model = self.programs.get(vertex="skin.vert", fragment="model.frag")
-        self._vao = ctx.vertex_array(
-            self._prog_model,
-            [(self._vbo_pos, "3f", "in_pos"), (self._vbo_j, "4i", "in_joints"),
-             (self._vbo_w, "4f", "in_weights")],
-            index_buffer=self._ibo, index_element_size=4)
+        # Two model programs: depth only, and depth + triangle id (for the appearance cost).
+        self._prog_model, self._vao = {}, {}
+        for with_tri in (False, True):
+            prog = self.programs.get(vertex="skin.vert", fragment="model.frag",
+                                     defines={"WITH_TRI": 1} if with_tri else None)
+            self._prog_model[with_tri] = prog
+            self._vao[with_tri] = ctx.vertex_array(
+                prog, [(self._vbo_pos, "3f", "in_pos"), (self._vbo_j, "4i", "in_joints"),
+                       (self._vbo_w, "4f", "in_weights")],
+                index_buffer=self._ibo, index_element_size=4)
         self._prog_fs = None
         self._vao_fs = None
 
@@ -218,6 +222,7 @@ class ScoringEngine:
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         depth = ctx.depth_renderbuffer((W, H))
         fbo = ctx.framebuffer(color_attachments=[z, tri], depth_attachment=depth)
+        fbo_z = ctx.framebuffer(color_attachments=[z], depth_attachment=depth)
         levels = int(np.log2(self.tile))
         cost = ctx.texture((W, H), 4, dtype="f4")
         cost.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.NEAREST)
@@ -225,7 +230,7 @@ class ScoringEngine:
         bones = ctx.texture((3 * self.n_bones, cols * rows), 4, dtype="f4")
         bones.filter = (moderngl.NEAREST, moderngl.NEAREST)
         sums = ctx.buffer(reserve=cols * rows * 16) if ctx.version_code >= 430 else None
-        t = dict(z=z, tri=tri, depth=depth, fbo=fbo, cost=cost, cost_fbo=cost_fbo, bones=bones,
+        t = dict(z=z, tri=tri, depth=depth, fbo=fbo, fbo_z=fbo_z, cost=cost, cost_fbo=cost_fbo, bones=bones,
                  sums=sums, levels=levels, W=W, H=H)
         # Keep at most two grid sizes alive: memory stays bounded whatever batch sizes come.
         if len(self._targets) >= 2:
@@ -236,7 +241,7 @@ class ScoringEngine:
 
     @staticmethod
     def _release_target(t):
-        for k in ("fbo", "cost_fbo", "z", "tri", "depth", "cost", "bones", "sums"):
+        for k in ("fbo", "fbo_z", "cost_fbo", "z", "tri", "depth", "cost", "bones", "sums"):
             if t.get(k) is not None:
                 t[k].release()
 
@@ -367,18 +372,20 @@ class ScoringEngine:
             self._auto_pending = False
             self.reduction = self._time_reductions(t, n, cols, rows, channels)
         res = np.empty((n, len(self.views), 4))
+        with_tri = "appearance" in channels or "custom" in channels
         for c, v in enumerate(self.views):
-            self._render(t, v, n, cols, rows)
+            self._render(t, v, n, cols, rows, with_tri)
             res[:, c] = self._reduce(t, v, n, cols, rows, channels, self.reduction)
         return res
 
-    def _render(self, t, v, n, cols, rows):
+    def _render(self, t, v, n, cols, rows, with_tri=True):
         ctx = self.ctx
         proj = np.asarray(v.cam_tile.gl_projection(self.near, self.far), dtype=np.float32)
-        prog = self._prog_model
-        t["fbo"].use()
-        t["fbo"].viewport = (0, 0, t["W"], t["H"])
-        self._clear_targets(t)
+        prog = self._prog_model[with_tri]
+        fbo = t["fbo"] if with_tri else t["fbo_z"]
+        self._clear_targets(t, with_tri)
+        fbo.use()
+        fbo.viewport = (0, 0, t["W"], t["H"])
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.BLEND)
         if self.cull_back_faces:
@@ -395,16 +402,16 @@ class ScoringEngine:
         prog["view"].write(v.view.T.copy().tobytes())
         prog["proj"].write(proj.T.copy().tobytes())
         prog["grid"].value = (cols, rows)
-        self._vao.render(moderngl.TRIANGLES, instances=n)
+        self._vao[with_tri].render(moderngl.TRIANGLES, instances=n)
         for i in range(4):
             ctx.disable_direct(_GL_CLIP_DISTANCE0 + i)
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
 
     @staticmethod
-    def _clear_targets(t):
+    def _clear_targets(t, with_tri=True):
         # Zero means "no model" in both attachments: the triangle texture stores id + 1 (moderngl
         # clears integer attachments with the bit pattern of a float, so only 0 is portable).
-        t["fbo"].clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        (t["fbo"] if with_tri else t["fbo_z"]).clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
 
     def _bind_cost_inputs(self, prog, t, v, channels):
         units = {"model_z": t["z"], "model_tri": t["tri"], "obs_z": v.obs_z, "obs_mask": v.obs_mask,
@@ -455,7 +462,7 @@ class ScoringEngine:
                                      v.obs_mask if "silhouette" in channels else 0,
                                      v.obs_bits if "appearance" in channels else 0)):
             return "compute"
-        self._render(t, v, n, cols, rows)
+        self._render(t, v, n, cols, rows, "appearance" in channels or "custom" in channels)
         times = {}
         for method in ("mipmap", "compute"):
             self._reduce(t, v, n, cols, rows, channels, method)  # compile and warm up
@@ -509,7 +516,7 @@ class ScoringEngine:
             for tex in (v.obs_z, v.obs_mask, v.obs_bits, v.tri_bits):
                 if tex is not None:
                     tex.release()
-        for obj in (self._vao, self._vbo_pos, self._vbo_j, self._vbo_w, self._ibo):
+        for obj in (*self._vao.values(), self._vbo_pos, self._vbo_j, self._vbo_w, self._ibo):
             obj.release()
         if self._owns_programs:
             self.programs.release()
