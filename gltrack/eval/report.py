@@ -146,3 +146,41 @@ def plot_errors(metrics, path, title=None, fps=None):
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def plot_comparison(metrics_by_name: dict, path, title=None, fps=None):
+    """One figure, several runs: mean 3-D joint error (mm) and mean marker error (m) over time.
+
+    Parameters
+    ----------
+    metrics_by_name : {label: metrics dict from :func:`gltrack.eval.metrics.evaluate`}
+    path : image path (PNG by suffix)
+    fps : frames per second for a time axis (frames otherwise)
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 6), constrained_layout=True)
+    for label, m in metrics_by_name.items():
+        per = m["per_frame"]
+        x = np.asarray(per["frame"], dtype=np.float64)
+        if fps:
+            x = x / fps
+        ax1.plot(x, per["joint_error_mm"], lw=1.4,
+                 label=f"{label}: mean {m['mean_joint_error_mm']:.0f} mm")
+        ax2.plot(x, per["marker_mean_m"], lw=1.4, label=label)
+    ax1.set_ylabel("3-D joint error [mm]")
+    ax2.set_ylabel("mean marker error [m]")
+    ax2.axhline(0.1, color="grey", ls="--", lw=0.8)
+    ax2.text(0, 0.1, " tracked <= 0.1 m", va="bottom", fontsize=8, color="grey")
+    ax2.set_xlabel("time [s]" if fps else "frame")
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+        ax.set_ylim(bottom=0)
+    if title:
+        ax1.set_title(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,76 @@
+"""``gltrack export RESULT --format bvh|glb|trc|json``: the tracked motion for other tools."""
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "export"
+HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "
+        "JSON")
+
+_DEFAULT_FPS = 30.0
+
+
+def add_arguments(p):
+    p.add_argument("result",
+                   help="results folder (poses.npz, or frames.jsonl of an unfinished run)")
+    p.add_argument("--format", choices=["bvh", "glb", "trc", "json"], default=None,
+                   help="output format (default: from the --out extension)")
+    p.add_argument("--dataset", default=None,
+                   help="dataset the result was tracked on: its body and fps (default: the "
+                        "default body at 30 fps)")
+    p.add_argument("--out", default=None,
+                   help="file to write (default: RESULT/poses.<format>)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second (default: the dataset's, else 30)")
+    p.add_argument("--dof", choices=["full", "38", "25"], default=None,
+                   help="DOF preset the result was tracked with (default: the dataset's body)")
+    p.add_argument("--points", choices=["markers", "joints"], default="markers",
+                   help="what a .trc file holds: surface markers or joint centres")
+
+
+def _format_and_out(args):
+    from gltrack.cli import UsageError
+    from gltrack.export import FORMATS
+
+    fmt = args.format
+    if fmt is None:
+        if args.out is None:
+            raise UsageError("give --format (bvh, glb, trc, json) or an --out file name with "
+                             "one of those extensions")
+        suffix = Path(args.out).suffix.lower()
+        fmt = next((f for f, ext in FORMATS.items() if ext == suffix), None)
+        if fmt is None:
+            raise UsageError(f"--out {args.out}: cannot tell the format from {suffix!r}; "
+                             "give --format")
+    if args.out is None:
+        res = Path(args.result)
+        folder = res.parent if res.is_file() else res
+        out = folder / f"poses{FORMATS[fmt]}"
+    else:
+        out = Path(args.out)
+        if out.is_dir():
+            raise UsageError(f"--out {out} is a folder, not a file")
+        if not out.parent.is_dir():
+            raise UsageError(f"--out {out}: folder {out.parent} does not exist")
+    if args.fps is not None and not args.fps > 0:
+        raise UsageError(f"--fps must be positive, got {args.fps}")
+    return fmt, out
+
+
+def run(args):
+    from gltrack.data.dataset import Dataset
+    from gltrack.data.results import load_results
+    from gltrack.export import body_for_result, export_result
+
+    fmt, out = _format_and_out(args)
+    result = load_results(args.result)
+    body_meta, fps, where = None, _DEFAULT_FPS, "the default body"
+    if args.dataset:
+        with Dataset.open(args.dataset) as ds:
+            body_meta, fps, where = ds.body, ds.fps, str(Path(args.dataset) / "meta.json")
+    if args.fps is not None:
+        fps = args.fps
+    body = body_for_result(result, body_meta, args.dof, where=where)
+    export_result(result, out, fmt, body, fps, points=args.points)
+    print(f"{out}: {fmt}, {len(result['params'])} frames at {fps:g} fps")
+    return 0

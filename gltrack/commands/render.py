@@ -1,0 +1,53 @@
+"""``gltrack render RESULT DATASET --out video.mp4``: the tracked body drawn over the input."""
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "render"
+HELP = ("overlay video: the tracked body, its skeleton and the ground truth drawn over the "
+        "dataset's frames (cameras tiled)")
+
+
+def add_arguments(p):
+    p.add_argument("result",
+                   help="results folder (poses.npz, or frames.jsonl of an unfinished run)")
+    p.add_argument("dataset", help="the dataset folder the result was tracked on")
+    p.add_argument("--out", required=True,
+                   help="video file: .mp4 (MPEG-4; Motion JPEG .avi if unavailable) or .avi")
+    p.add_argument("--camera", default="all",
+                   help="camera index or name, a comma-separated list of them, or 'all'")
+    p.add_argument("--fps", type=float, default=None,
+                   help="video frame rate (default: the dataset's)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="render only the first N frames of the result")
+    p.add_argument("--dof", choices=["full", "38", "25"], default=None,
+                   help="DOF preset the result was tracked with (default: the dataset's body)")
+
+
+def run(args):
+    import logging
+
+    from gltrack.cli import UsageError
+    from gltrack.eval.overlay import render_overlay
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".mp4", ".avi"):
+        raise UsageError(f"--out {out}: use a .mp4 or .avi file name")
+    if out.is_dir():
+        raise UsageError(f"--out {out} is a folder, not a file")
+    if not out.parent.is_dir():
+        raise UsageError(f"--out {out}: folder {out.parent} does not exist")
+    if args.fps is not None and not args.fps > 0:
+        raise UsageError(f"--fps must be positive, got {args.fps}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise UsageError(f"--max-frames must be at least 1, got {args.max_frames}")
+    cams = args.camera.strip()
+    cameras = "all" if cams == "all" else [c.strip() for c in cams.split(",") if c.strip()]
+    if not cameras:
+        raise UsageError("--camera names no camera")
+    quiet = logging.getLogger().getEffectiveLevel() > logging.WARNING
+    path = render_overlay(args.result, args.dataset, out, cameras=cameras,
+                          max_frames=args.max_frames, progress=not quiet, fps=args.fps,
+                          preset=args.dof)
+    print(f"{path}: overlay video written")
+    return 0

@@ -1,0 +1,116 @@
+"""Exports of a tracking result for other tools: BVH, glTF binary, OpenSim TRC and JSON.
+
+The results folder does not record the body it was tracked with; it comes from the dataset's
+``meta.json`` (``body``) or, without a dataset, the default body. :func:`body_for_result` builds
+it and checks that the results' parameter vectors fit its DOF preset.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Export formats and their file extensions.
+FORMATS = {"bvh": ".bvh", "glb": ".glb", "trc": ".trc", "json": ".json"}
+
+
+def body_for_result(result: dict, body_meta: dict | None = None, preset: str | None = None,
+                    where: str = "the default body"):
+    """The body a result was tracked with.
+
+    Parameters
+    ----------
+    result : dict
+        From :func:`gltrack.data.results.load_results`.
+    body_meta : dict, optional
+        A dataset's ``meta.json`` ``body`` record; None for the default body.
+    preset : {"full", "38", "25"}, optional
+        DOF preset overriding the recorded one (as ``gltrack track --dof`` does).
+    where : str
+        Where the body record came from, for messages.
+
+    Returns
+    -------
+    gltrack.body.model.BodyModel
+
+    Raises
+    ------
+    ValueError
+        The results' ``params`` length differs from the preset's DOF count (the message names
+        the preset that would fit, if any).
+    """
+    from gltrack.body.dofs import PRESETS, make_dofs
+    from gltrack.body.model import body_from_meta
+
+    body = body_from_meta(body_meta, preset, where=where)
+    D = np.asarray(result["params"]).shape[1]
+    if D != body.dofs.size:
+        fits = [p for p in PRESETS if make_dofs(body.skeleton, p).size == D]
+        hint = f"; preset {fits[0]!r} has {D} (choose it)" if fits else ""
+        raise ValueError(f"results params have {D} values, but the {body.dofs.preset!r} DOF "
+                         f"preset of {where} has {body.dofs.size}{hint}")
+    return body
+
+
+def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "markers") -> Path:
+    """Write ``result`` in one format.
+
+    Parameters
+    ----------
+    result : dict, from :func:`gltrack.data.results.load_results`
+    out : path of the file to write
+    fmt : {"bvh", "glb", "trc", "json"}
+    body : BodyModel, from :func:`body_for_result`
+    fps : float, frames per second of the dataset
+    points : {"markers", "joints"}
+        What a ``trc`` file holds: the results' surface markers (computed from the body for
+        results without markers) or the joint centres.
+
+    Returns
+    -------
+    Path written
+    """
+    from .gltf import write_glb
+    from .jsonout import write_json
+    from .trc import write_trc
+
+    out = Path(out)
+    if len(result["params"]) == 0:
+        raise ValueError("the result holds no frames: nothing to export")
+    frames = np.asarray(result["frame"], dtype=np.int64)
+    if fmt == "bvh":
+        from gltrack.motion.export import write_params_bvh
+
+        if np.any(np.diff(frames) != 1):
+            log.warning("%s: frames are not consecutive (%d..%d, %d frames); BVH has no frame "
+                        "numbers, so the gaps close up", out, frames[0], frames[-1], len(frames))
+        write_params_bvh(out, body, result["params"], fps)
+        return out
+    if fmt == "glb":
+        return write_glb(out, body, result["params"], fps, frames)
+    if fmt == "json":
+        return write_json(out, result, fps, body)
+    if fmt == "trc":
+        if points == "joints":
+            names, xyz = result["joint_names"], result["joints"]
+        elif points == "markers":
+            names, xyz = result["marker_names"], result["markers"]
+            if not len(names):
+                log.info("result has no markers: computing the body's from the params")
+                names = body.markers.names
+                xyz = body.marker_positions(result["params"])
+        else:
+            raise ValueError(f"points must be 'markers' or 'joints', got {points!r}")
+        return write_trc(out, names, xyz, fps, frames)
+    raise ValueError(f"unknown export format {fmt!r} (have {', '.join(FORMATS)})")
+
+
+from .gltf import build_glb, write_glb  # noqa: E402
+from .jsonout import motion_document, write_json  # noqa: E402
+from .trc import format_trc, read_trc, write_trc  # noqa: E402
+
+__all__ = ["FORMATS", "body_for_result", "export_result", "build_glb", "write_glb",
+           "motion_document", "write_json", "format_trc", "read_trc", "write_trc"]

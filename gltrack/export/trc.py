@@ -1,0 +1,135 @@
+"""Point trajectories -> OpenSim ``.trc`` (the marker file OpenSim and Pose2Sim load).
+
+Layout written (tab-separated; ``<TAB>`` shown as ``|``)::
+
+    PathFileType|4|(X/Y/Z)|NAME.trc
+    DataRate|CameraRate|NumFrames|NumMarkers|Units|OrigDataRate|OrigDataStartFrame|OrigNumFrames
+    30.00|30.00|100|23|mm|30.00|1|100
+    Frame#|Time|head_top|||head_front||| ...
+    ||X1|Y1|Z1|X2|Y2|Z2 ...
+    <blank line>
+    1|0.00000|x|y|z|x|y|z ...
+
+``Frame#`` is 1-based (the dataset frame index + 1), ``Time`` is ``frame / fps`` seconds and the
+coordinates are millimetres in the gltrack world frame, which is OpenSim's (+Y up). A point
+without a value (NaN) is written as empty fields, OpenSim's mark for a missing marker.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units", "OrigDataRate",
+               "OrigDataStartFrame", "OrigNumFrames")
+
+
+def _coord(x: float) -> str:
+    return f"{x:.3f}" if np.isfinite(x) else ""
+
+
+def format_trc(names, points, fps: float, frames=None, filename: str = "markers.trc") -> str:
+    """The text of a ``.trc`` file.
+
+    Parameters
+    ----------
+    names : sequence of str, (M,)
+        Marker names (no tabs or newlines).
+    points : (T, M, 3) float, metres, world frame
+    fps : float, frames per second (DataRate and CameraRate)
+    frames : (T,) int, optional
+        0-based frame index of each row (written 1-based); default ``0..T-1``.
+    filename : str
+        Name recorded on the first line.
+
+    Returns
+    -------
+    str
+    """
+    names = [str(n) for n in names]
+    X = np.asarray(points, dtype=np.float64)
+    if X.ndim != 3 or X.shape[1:] != (len(names), 3):
+        raise ValueError(f"points must be (T, {len(names)}, 3), got {X.shape}")
+    if not names:
+        raise ValueError("a .trc file needs at least one marker")
+    for n in names:
+        if not n or re.search(r"[\t\r\n]", n):
+            raise ValueError(f"marker name {n!r} is empty or holds a tab or line break")
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    T, M = X.shape[:2]
+    frames = np.arange(T) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
+    if frames.shape != (T,) or np.any(frames < 0):
+        raise ValueError(f"frames must be ({T},) non-negative frame indices")
+    start = int(frames[0]) + 1 if T else 1
+    lines = [
+        f"PathFileType\t4\t(X/Y/Z)\t{filename}",
+        "\t".join(HEADER_KEYS),
+        f"{fps:.2f}\t{fps:.2f}\t{T}\t{M}\tmm\t{fps:.2f}\t{start}\t{T}",
+        "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t",
+        "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, M + 1)),
+        "",
+    ]
+    mm = X * 1000.0
+    for f, row in zip(frames, mm):
+        lines.append(f"{f + 1}\t{f / fps:.5f}\t" + "\t".join(_coord(v) for v in row.reshape(-1)))
+    return "\n".join(lines) + "\n"
+
+
+def write_trc(path, names, points, fps: float, frames=None) -> Path:
+    """Write a ``.trc`` file (see :func:`format_trc`); returns the path."""
+    path = Path(path)
+    path.write_text(format_trc(names, points, fps, frames, filename=path.name))
+    log.info("wrote %s (%d frames, %d markers)", path, len(points), len(names))
+    return path
+
+
+def read_trc(path) -> dict:
+    """Read a ``.trc`` file as written by :func:`write_trc` (and by OpenSim / Pose2Sim).
+
+    Returns
+    -------
+    dict
+        ``names`` list of str (M,); ``frame`` (T,) int, as in the file (1-based); ``time`` (T,)
+        float seconds; ``points`` (T, M, 3) float64 in the file's units (NaN where empty);
+        ``header`` dict of the eight header fields (strings); ``units`` str.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the field that is malformed.
+    """
+    path = Path(path)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise ValueError(f"{path}: field 'PathFileType': not a .trc file")
+    keys, values = lines[1].split("\t"), lines[2].split("\t")
+    if len(values) < len(keys):
+        raise ValueError(f"{path}: header values: {len(values)} values for {len(keys)} keys")
+    header = dict(zip(keys, values))
+    try:
+        M = int(header["NumMarkers"])
+    except (KeyError, ValueError):
+        raise ValueError(f"{path}: field 'NumMarkers' missing or not an integer") from None
+    names = [n for n in lines[3].split("\t")[2:] if n]
+    if len(names) != M:
+        raise ValueError(f"{path}: marker names row: {len(names)} names, NumMarkers is {M}")
+    frame, time, pts = [], [], []
+    for i, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        cells = line.split("\t")
+        cells += [""] * (2 + 3 * M - len(cells))
+        try:
+            frame.append(int(cells[0]))
+            time.append(float(cells[1]))
+            pts.append([float(c) if c.strip() else np.nan for c in cells[2:2 + 3 * M]])
+        except ValueError:
+            raise ValueError(f"{path}: line {i}: not numbers") from None
+    return {"names": names, "frame": np.array(frame, dtype=np.int64),
+            "time": np.array(time), "points": np.array(pts, dtype=np.float64).reshape(-1, M, 3),
+            "header": header, "units": header.get("Units", "")}
