@@ -11,7 +11,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ("info", "demo", "synth", "track", "eval", "learn", "bench", "export", "render")
+COMMANDS = ("info", "demo", "synth", "track", "eval", "learn", "learn-parts", "bench", "export", "render")
 
 
 class UsageError(Exception):
@@ -20,9 +20,9 @@ class UsageError(Exception):
 
 def _load(name):
     try:
-        return importlib.import_module(f"gltrack.commands.{name}")
+        return importlib.import_module(f"gltrack.commands.{name.replace('-', '_')}")
     except ModuleNotFoundError as exc:
-        if exc.name == f"gltrack.commands.{name}":
+        if exc.name == f"gltrack.commands.{name.replace('-', '_')}":
             return None
         raise
 

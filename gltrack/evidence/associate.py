@@ -1,0 +1,153 @@
+"""Data association for evidence propagation: the greedy loop of Ganapathi et al. (2010, fig. 4).
+
+Given the current best pose (already refined by hill climbing) and classified part detections:
+
+1. prune detections near any part of ``x_best`` (already explained; the detector is most useful
+   exactly when the tracker has lost a part, and then the detection is far from it);
+2. expand the rest into candidate correspondences (body part, detection) of matching class,
+   e.g. left hand and right hand with every "hand" detection;
+3. for each candidate: propose a pose by UT inverse kinematics from ``x_best``
+   (:func:`.ik.ut_ik`), refine it by local hill climbing, and keep it when its cost beats
+   ``x_best``'s.
+
+The paper makes one pass; here the pass is repeated while it improves anything (a greedy loop),
+pruning again after every accepted correspondence. Pure function of callables: no GL here.
+"""
+from __future__ import annotations
+
+import logging
+from typing import NamedTuple
+
+import numpy as np
+
+from .ik import ut_ik
+from .parts import Detections
+
+log = logging.getLogger(__name__)
+
+
+class EPResult(NamedTuple):
+    """Outcome of :func:`evidence_propagation` (unpacks as a 4-tuple).
+
+    Attributes
+    ----------
+    x : (D,) float64, best pose
+    cost : float, its cost
+    evaluations : int, poses scored by ``cost_fn`` and ``hill_climb_fn``
+    accepted : list of dict, one per accepted correspondence: ``part``, ``detection`` (index
+        into the detections), ``class``, ``cost_before``, ``cost_after``, ``ik_residual``
+        (metres)
+    """
+
+    x: np.ndarray
+    cost: float
+    evaluations: int
+    accepted: list
+
+
+def _as_detections(detections) -> Detections:
+    if isinstance(detections, Detections):
+        return detections
+    pairs = list(detections)
+    if not pairs:
+        return Detections(np.zeros((0, 3)), ())
+    return Detections(np.array([p for p, _ in pairs], dtype=np.float64), [c for _, c in pairs])
+
+
+def prune_explained(points: np.ndarray, part_positions: np.ndarray, radius: float) -> np.ndarray:
+    """Mask of detections farther than ``radius`` from every part position.
+
+    Parameters
+    ----------
+    points : (J, 3) float, detections, metres
+    part_positions : (P, 3) float, metres
+    radius : float, metres
+
+    Returns
+    -------
+    (J,) bool, True = still unexplained
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    parts = np.asarray(part_positions, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0 or len(parts) == 0:
+        return np.ones(len(pts), dtype=bool)
+    d = np.linalg.norm(pts[:, None] - parts[None], axis=2)
+    return d.min(1) > radius
+
+
+def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost_fn,
+                         hill_climb_fn, *, sigma, chains: dict | None = None,
+                         meas_std: float = 0.03, prune_radius: float = 0.10,
+                         cost_best: float | None = None, lower=None, upper=None,
+                         max_passes: int = 3, ik_kwargs: dict | None = None) -> EPResult:
+    """Greedy evidence propagation from classified part detections.
+
+    Parameters
+    ----------
+    x_best : (D,) float, current best pose (after hill climbing)
+    detections : Detections, or iterable of ``(point (3,), class str)``
+    part_fns : dict part name -> callable ``X (N, D) -> (N, 3)``, world part position, metres
+    classes : dict part name -> class str (e.g. ``PART_CLASSES``); parts without a class are
+        never matched
+    cost_fn : callable ``X (N, D) -> (N,)``, lower is better
+    hill_climb_fn : callable ``x (D,) -> (x (D,), cost float, evaluations int)``
+    sigma : (D,) float, prior standard deviation of the pose change for the IK (e.g. a multiple
+        of ``DofSet.sigma_at(fps)``: evidence matters most after fast motion)
+    chains : dict part name -> (d,) int DOFs the IK may move (e.g. :func:`.ik.part_chains`);
+        default: every DOF with ``sigma > 0``
+    meas_std : float, metres, detection noise (isotropic)
+    prune_radius : float, metres, detections this close to any part of ``x_best`` are ignored
+    cost_best : float, optional, ``cost_fn(x_best)`` if known (saves one evaluation)
+    lower, upper : (D,) float, optional, pose limits for the IK
+    max_passes : int, passes over the candidate correspondences at most
+    ik_kwargs : dict, extra arguments for :func:`.ik.ut_ik`
+
+    Returns
+    -------
+    EPResult
+    """
+    x_best = np.array(x_best, dtype=np.float64).ravel()
+    det = _as_detections(detections)
+    evals = 0
+    if cost_best is None:
+        cost_best = float(np.asarray(cost_fn(x_best[None]), dtype=np.float64).ravel()[0])
+        evals += 1
+    accepted = []
+    names = [n for n in part_fns if n in classes]
+    R = np.eye(3) * float(meas_std) ** 2
+    ik_kwargs = dict(ik_kwargs or {})
+    used = np.zeros(len(det), dtype=bool)
+
+    def parts_of(x):
+        return np.concatenate([np.asarray(part_fns[n](x[None]), dtype=np.float64).reshape(1, 3)
+                               for n in names]) if names else np.zeros((0, 3))
+
+    for _ in range(int(max_passes)):
+        improved = False
+        open_ = ~used & prune_explained(det.points, parts_of(x_best), prune_radius)
+        cands = [(n, j) for n in names for j in np.nonzero(open_)[0]
+                 if det.classes[j] == classes[n]]
+        log.debug("EP pass: %d open detections, %d correspondences", int(open_.sum()), len(cands))
+        for name, j in cands:
+            if used[j]:
+                continue
+            ik = ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
+                       dofs=None if chains is None else chains[name], lower=lower, upper=upper,
+                       **ik_kwargs)
+            x_new, c_new, e = hill_climb_fn(ik.x)
+            evals += int(e)
+            c_new = float(c_new)
+            if c_new < cost_best:
+                log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j,
+                          det.classes[j], cost_best, c_new)
+                accepted.append({"part": name, "detection": int(j), "class": det.classes[j],
+                                 "cost_before": cost_best, "cost_after": c_new,
+                                 "ik_residual": float(np.linalg.norm(ik.residual))})
+                x_best, cost_best = np.asarray(x_new, dtype=np.float64).ravel(), c_new
+                used[j] = True
+                improved = True
+                # the new pose may explain other detections too
+                used |= ~prune_explained(det.points, parts_of(x_best), prune_radius)
+        if not improved:
+            break
+    return EPResult(x_best, cost_best, evals, accepted)
