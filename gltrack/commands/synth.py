@@ -1,0 +1,108 @@
+"""``gltrack synth``: synthesise a depth or multi-view dataset from a BVH motion clip."""
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+NAME = "synth"
+HELP = ("synthesise a dataset (one ToF depth camera, or several colour cameras with background "
+        "subtraction masks) from a BVH motion clip, with ground truth")
+
+
+def add_arguments(p):
+    from gltrack.body.dofs import PRESETS
+    from gltrack.data.sim_depth import NOISE_LEVELS
+    from gltrack.data.simulate import DISTRACTORS, OCCLUDERS
+
+    p.add_argument("--motion", required=True, metavar="F.bvh", help="BVH motion clip")
+    p.add_argument("--rig", required=True, choices=["depth", "multiview"], help="sensor rig")
+    p.add_argument("--out", required=True, metavar="DIR", help="dataset folder to create")
+    p.add_argument("--frames", default=None, metavar="A:B",
+                   help="source frames A (inclusive) to B (exclusive), counted at the clip's "
+                        "own frame rate; default: the whole clip")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the dataset "
+                   "(the clip is resampled)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+    p.add_argument("--size", default=None, metavar="WxH",
+                   help="image size (default 176x144 for depth, 320x240 for multiview)")
+    p.add_argument("--cameras", type=int, default=None,
+                   help="number of colour cameras of the multiview rig (default 4)")
+    p.add_argument("--occluder", default="none", choices=list(OCCLUDERS),
+                   help="static occluder between cam0 and the subject")
+    p.add_argument("--distractor", default="none", choices=list(DISTRACTORS),
+                   help="moving non-human object beside the subject")
+    p.add_argument("--noise", default="default", choices=list(NOISE_LEVELS),
+                   help="scale of every sensor effect")
+    p.add_argument("--preset", default="full", choices=list(PRESETS), help="DOF preset")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+
+
+def parse_size(text):
+    """``"WxH"`` -> (W, H) ints; UsageError otherwise."""
+    from gltrack.cli import UsageError
+
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text or "")
+    if not m:
+        raise UsageError(f"--size must look like WxH (e.g. 320x240), got {text!r}")
+    w, h = int(m.group(1)), int(m.group(2))
+    if not (16 <= w <= 8192 and 16 <= h <= 8192):
+        raise UsageError(f"--size must be within 16..8192 pixels per side, got {w}x{h}")
+    return w, h
+
+
+def parse_frames(text):
+    """``"A:B"`` -> (A, B) with 0 <= A < B; UsageError otherwise."""
+    from gltrack.cli import UsageError
+
+    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", text or "")
+    if not m:
+        raise UsageError(f"--frames must look like A:B with integers A < B, got {text!r}")
+    a, b = int(m.group(1)), int(m.group(2))
+    if a >= b:
+        raise UsageError(f"--frames A:B needs A < B, got {a}:{b}")
+    return a, b
+
+
+def run(args):
+    from gltrack.cli import UsageError
+
+    size = parse_size(args.size) if args.size is not None else None
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    if not args.fps > 0:
+        raise UsageError(f"--fps must be positive, got {args.fps}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if args.cameras is not None:
+        if args.rig != "multiview":
+            raise UsageError("--cameras applies to the multiview rig only")
+        if not 1 <= args.cameras <= 64:
+            raise UsageError(f"--cameras must be within 1..64, got {args.cameras}")
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise UsageError(f"{out}: exists and is not empty (use --overwrite to replace it)")
+    motion = Path(args.motion)
+    if not motion.is_file():
+        raise ValueError(f"{motion}: no such file")
+
+    from gltrack.motion.bvh import read_bvh
+    from gltrack.motion.retarget import load_motion
+
+    if frames is not None:
+        n = read_bvh(motion).n_frames
+        if frames[1] > n:
+            raise ValueError(f"{motion}: the clip has {n} frames, but --frames "
+                             f"{frames[0]}:{frames[1]} needs {frames[1]}")
+    skeleton, dofs, params, _ = load_motion(motion, preset=args.preset, fps=args.fps,
+                                            frames=frames)
+
+    from gltrack.data.simulate import synthesize
+
+    path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
+                      size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
+                      distractor=args.distractor, noise=args.noise,
+                      progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
+    print(f"wrote {path} ({len(params)} frames at {args.fps:g} fps, rig {args.rig})")
+    return 0
