@@ -203,21 +203,8 @@ def test_gl_matrices_match_project():
         cam.gl_projection(0.0, 1.0)
 
 
-@pytest.fixture(scope="module")
-def gl_ctx():
-    from gltrack.gl.context import GLContextError, create_context
-
-    try:
-        ctx = create_context()
-    except GLContextError as exc:
-        pytest.skip(f"no OpenGL context: {exc}")
-    yield ctx
-    ctx.release()
-
-
-def test_gl_render_rows_and_depth(gl_ctx):
+def test_gl_render_rows_and_depth(ctx):
     """Points drawn with P @ view land on framebuffer pixel (u, v), read back row 0 first."""
-    ctx = gl_ctx
     K = np.array([[90.0, 0, 37.0], [0, 80.0, 21.0], [0, 0, 1]])  # off-centre principal point
     cam = Camera("c", "depth", 80, 50, K, np.zeros(5), _random_rotation(np.random.default_rng(3)),
                  np.array([0.1, -0.2, 0.3]))
@@ -249,6 +236,9 @@ def test_gl_render_rows_and_depth(gl_ctx):
         depth = np.frombuffer(fbo.read(components=1, attachment=-1, dtype="f4"), np.float32)
         depth = depth.reshape(cam.height, cam.width)
     finally:
+        from gltrack.gl.context import park_framebuffer
+
+        park_framebuffer(ctx)
         for obj in (fbo, vao, vbo, prog):
             obj.release()
         ctx.disable(ctx.DEPTH_TEST)

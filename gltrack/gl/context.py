@@ -142,3 +142,18 @@ def capabilities(ctx: moderngl.Context) -> Capabilities:
         max_texture_size=int(info.get("GL_MAX_TEXTURE_SIZE", 0)),
         compute=ctx.version_code >= 430,
     )
+
+
+def park_framebuffer(ctx: moderngl.Context):
+    """Bind a 1x1 framebuffer that lives as long as ``ctx``.
+
+    moderngl re-binds "the previously bound framebuffer" when it creates the next one; if that
+    framebuffer has been released, the next creation raises GL_INVALID_OPERATION. Anything that
+    releases a framebuffer it may have left bound parks the binding here first.
+    """
+    idle = getattr(ctx, "_gltrack_idle_fbo", None)
+    if idle is None:
+        idle = ctx.simple_framebuffer((1, 1))
+        ctx._gltrack_idle_fbo = idle
+    idle.use()
+    return idle

@@ -30,6 +30,7 @@ import logging
 import moderngl
 import numpy as np
 
+from gltrack.gl.context import park_framebuffer
 from gltrack.gl.programs import ProgramCache
 from gltrack.observe import hls
 
@@ -171,11 +172,7 @@ class EnvironmentLayers:
             return
         # As in ScoringEngine.release: moderngl re-binds the previous framebuffer when it makes
         # the next one, so never leave one of ours bound once it is gone.
-        idle = getattr(self.ctx, "_gltrack_idle_fbo", None)
-        if idle is None:
-            idle = self.ctx.simple_framebuffer((1, 1))
-            self.ctx._gltrack_idle_fbo = idle
-        idle.use()
+        park_framebuffer(self.ctx)
         for src, dst, fbo in self._targets.values():
             fbo.release()
             src.release()

@@ -32,6 +32,7 @@ import moderngl
 import numpy as np
 
 from gltrack.body.mesh import BodyMesh
+from gltrack.gl.context import park_framebuffer
 from gltrack.gl.programs import ProgramCache
 
 log = logging.getLogger(__name__)
@@ -216,6 +217,7 @@ class ScoringEngine:
         if key in self._targets:
             return self._targets[key]
         ctx, W, H = self.ctx, cols * self.tile, rows * self.tile
+        park_framebuffer(ctx)  # whatever is bound may be released by other code later
         z = ctx.texture((W, H), 1, dtype="f4")
         tri = ctx.texture((W, H), 1, dtype="i4")
         for t in (z, tri):
@@ -502,11 +504,7 @@ class ScoringEngine:
         # moderngl re-binds "the previous framebuffer" when it creates the next one; if that is
         # one of ours after release, the next engine gets GL_INVALID_OPERATION. Park the binding
         # on a tiny framebuffer that lives as long as the context.
-        idle = getattr(self.ctx, "_gltrack_idle_fbo", None)
-        if idle is None:
-            idle = self.ctx.simple_framebuffer((1, 1))
-            self.ctx._gltrack_idle_fbo = idle
-        idle.use()
+        park_framebuffer(self.ctx)
         for t in self._targets.values():
             self._release_target(t)
         self._targets.clear()
