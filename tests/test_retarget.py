@@ -212,3 +212,19 @@ def test_load_motion_cuts_and_resamples(shared, tmp_path):
     write_bvh(out, read_bvh(path))
     _, _, p_back, _ = load_motion(out, preset="38", fps=30, frames=(1, 121))
     np.testing.assert_allclose(p_back, params, atol=1e-6)
+
+
+def test_results_bvh_reads_back_as_gltrack_convention(tmp_path, rng):
+    """poses.bvh written by gltrack itself retargets onto the same body exactly."""
+    from gltrack.body.model import BodyModel
+    from gltrack.motion.export import write_params_bvh
+    from gltrack.motion.names import detect_convention
+    from gltrack.motion.retarget import load_motion
+
+    body = BodyModel.build()
+    P = body.dofs.validate(body.dofs.zero(body.skeleton) + rng.normal(size=(6, body.dofs.size)) * 0.3)
+    path = tmp_path / "poses.bvh"
+    write_params_bvh(path, body, P, 30.0)
+    assert detect_convention(body.skeleton.names) == "gltrack"
+    sk, dofs, params, fps = load_motion(path, preset="full")
+    assert params.shape == P.shape and fps == pytest.approx(30.0)

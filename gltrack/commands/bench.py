@@ -5,11 +5,13 @@ from pathlib import Path
 
 NAME = "bench"
 HELP = "run a benchmark and print/write its JSON figures"
-SUITES = ("engine",)
+SUITES = ("engine", "depth", "multiview", "vlmm")
 
 
 def add_arguments(p):
-    p.add_argument("suite", choices=SUITES, help="which benchmark")
+    p.add_argument("suite", choices=SUITES,
+                   help="engine: scoring throughput vs the naive way; depth / multiview / vlmm: tracker "
+                        "accuracy on data synthesised from ../shared/mocap")
     p.add_argument("--json", metavar="FILE", help="also write the results to FILE")
     p.add_argument("--quick", action="store_true", help="fewer candidates and repeats (noisier)")
     p.add_argument("--no-baseline", action="store_true", help="skip the pyrender baseline")
@@ -38,12 +40,20 @@ def _table(res):
 
 
 def run(args):
+    import importlib
+
     if args.suite == "engine":
         from gltrack.bench.engine import bench_engine
 
         res = bench_engine(quick=args.quick, with_baseline=not args.no_baseline, seed=args.seed)
+        text = _table(res)
+    else:
+        mod = importlib.import_module(f"gltrack.bench.{args.suite}")
+        res = getattr(mod, f"bench_{args.suite}")(quick=args.quick, seed=args.seed)
+        fmt = getattr(mod, "format_table", None)
+        text = fmt(res) if fmt else json.dumps(res, indent=1)
     if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
-    print(_table(res))
+        Path(args.json).write_text(json.dumps(res, indent=2, default=float) + "\n")
+    print(text)
     sys.stdout.flush()
     return 0

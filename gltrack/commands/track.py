@@ -12,7 +12,8 @@ def add_arguments(p):
     p.add_argument("dataset", help="dataset folder (gltrack-dataset version 1)")
     p.add_argument("--method", required=True, choices=methods,
                    help="hc / hc+ep / ep: depth trackers (Ganapathi); sir / apf / ps / hps: multi-view "
-                        "particle filters (Bandouch)")
+                        "particle filters (Bandouch); vlmm: behaviour-model particle filter (Caillette; "
+                        "needs --config with model = 'MODEL.npz' from gltrack learn)")
     p.add_argument("--out", required=True, help="results folder to write")
     p.add_argument("--config", metavar="FILE.toml",
                    help="tracker options as a TOML table (unknown keys are errors); see the method's "

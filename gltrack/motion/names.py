@@ -10,6 +10,8 @@ as ``mixamorig:``):
 * ``"3dsmax"`` (CMU / Hahne 3ds Max-friendly): ``Hips``, ``lowerback``, ``Chest``, ``Chest2``,
   ``lowerneck``, ``Neck``, ``Head``, ``LeftCollar`` (clavicle), ``LeftShoulder`` (**upper
   arm**), ``LeftElbow``, ``LeftWrist``, ``LeftHip``, ``LeftKnee``, ``LeftAnkle``, ``LeftToe``.
+* ``"gltrack"``: the canonical names themselves (``pelvis``, ``l_shoulder``, ...), as written by
+  :mod:`gltrack.motion.export`, so results' ``poses.bvh`` reads back.
 * ``"daz"`` (Daz/Poser): ``hip``, ``abdomen``, ``chest``, ``neck``, ``head``, ``lCollar``,
   ``lShldr``, ``lForeArm``, ``lHand``, ``lButtock``, ``lThigh``, ``lShin``, ``lFoot``.
 
@@ -41,6 +43,8 @@ def _sided(table: dict) -> dict:
 
 #: Candidate BVH names per canonical joint for each convention (first present one wins).
 CONVENTIONS = {
+    # gltrack's own names (what gltrack.motion.export writes into results' poses.bvh).
+    "gltrack": {name: [name] for name in JOINT_NAMES},
     "motionbuilder": _sided({
         "pelvis": ["Hips"],
         # LowerBack sits at the hips with the first spine rotation; Spine carries the second.
@@ -89,6 +93,7 @@ CONVENTIONS = {
 
 #: Names only one convention uses, to break ties when detecting it.
 _MARKERS = {
+    "gltrack": ("l_shoulder", "l_elbow", "spine_upper", "l_clavicle"),
     "motionbuilder": ("leftarm", "leftupleg", "leftforearm", "lefttoebase"),
     "3dsmax": ("leftcollar", "leftelbow", "leftwrist", "leftknee", "chest2"),
     "daz": ("lshldr", "lthigh", "lshin", "abdomen", "lcollar"),

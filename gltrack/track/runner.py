@@ -39,7 +39,7 @@ def _load(spec):
 
 def _extend_registry():
     # Trackers beyond plain HC live in optional modules that add themselves when imported.
-    for mod in ("gltrack.track.ep", "gltrack.track.multiview"):
+    for mod in ("gltrack.track.ep", "gltrack.track.multiview", "gltrack.track.vlmm"):
         try:
             importlib.import_module(mod)
         except ModuleNotFoundError as exc:

@@ -1,0 +1,114 @@
+"""``gltrack learn --motion A.bvh ... --out MODEL.npz``: learn a behaviour model (clusters + VLMM).
+
+The model is Caillette, Galata & Howard's (2008): Figueiredo-Jain Gaussian clusters over joint
+angles and their velocities, and a variable length Markov model over the cluster labels (see
+:mod:`gltrack.motion.behaviour`). The printed report gives the model entropy (bits per frame) on
+the training frames and on a held-out part so memory length and epsilon can be chosen: a good
+model has both low and close together; a held-out entropy far above the training one means the
+VLMM overfits (lower ``--max-memory`` or raise ``--epsilon``).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+NAME = "learn"
+HELP = "learn a behaviour model (motion clusters + VLMM) from BVH clips for --method vlmm"
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p):
+    p.add_argument("--motion", nargs="+", required=True, metavar="CLIP.bvh",
+                   help="training motion clips (BVH; retargeted onto the gltrack body)")
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
+    p.add_argument("--max-memory", type=int, default=10,
+                   help="longest VLMM context, frames (clusters)")
+    p.add_argument("--epsilon", type=float, default=1e-3,
+                   help="VLMM significance threshold on the weighted KL gain (nats)")
+    p.add_argument("--fps", type=float, default=30.0,
+                   help="frame rate to learn at (clips are resampled); use the tracked data's rate")
+    p.add_argument("--preset", choices=["25", "38", "full"], default="25",
+                   help="DOF preset of the modelled joint angles (25: Caillette's model)")
+    p.add_argument("--no-augment", action="store_true",
+                   help="do not add speed-resampled and smoothed copies of the training clips")
+    p.add_argument("--heldout", type=float, default=0.2, metavar="FRAC",
+                   help="fraction at the end of each clip kept out of training for the held-out "
+                        "entropy (0: learn from everything)")
+    p.add_argument("--k-max", type=int, default=30, help="most clusters tried by the clustering")
+    p.add_argument("--min-count", type=int, default=3,
+                   help="fewest occurrences of a context for the VLMM to consider it")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the clustering")
+
+
+def _check(args, usage_error):
+    for m in args.motion:
+        if not Path(m).is_file():
+            raise usage_error(f"--motion: no such file {m}")
+    if args.max_memory < 0:
+        raise usage_error(f"--max-memory must be >= 0, got {args.max_memory}")
+    if not args.epsilon >= 0:
+        raise usage_error(f"--epsilon must be >= 0, got {args.epsilon}")
+    if not args.fps > 0:
+        raise usage_error(f"--fps must be positive, got {args.fps}")
+    if not 0 <= args.heldout < 1:
+        raise usage_error(f"--heldout must be in [0, 1), got {args.heldout}")
+    if args.k_max < 1 or args.min_count < 1:
+        raise usage_error("--k-max and --min-count must be >= 1")
+    out = Path(args.out)
+    if out.is_dir():
+        raise usage_error(f"--out: {out} is a folder, expected a file name")
+    if not out.parent.is_dir():
+        raise usage_error(f"--out: folder {out.parent} does not exist")
+
+
+def format_report(rep: dict, clips: list) -> str:
+    """Human-readable lines of :meth:`BehaviourModel.report` plus the training clips."""
+    def ent(v):
+        return "n/a (no held-out part)" if v is None else f"{v:.3f} bits/frame"
+
+    lines = [f"clips:            {', '.join(f'{p} ({n} frames)' for p, n in clips)}",
+             f"clusters:         {rep['n_clusters']} (feature dimension {rep['feature_dim']})",
+             f"VLMM states:      {rep['n_states']} (longest memory used {rep['max_memory_used']})",
+             f"training:         {rep['train_frames']} frames (after augmentation), entropy "
+             f"{ent(rep['train_entropy'])}",
+             f"held-out:         {rep['heldout_frames'] or 0} frames, entropy "
+             f"{ent(rep['heldout_entropy'])}"]
+    tr, ho = rep["train_entropy"], rep["heldout_entropy"]
+    if ho is not None and tr is not None and ho > 2.0 * tr + 0.25:
+        lines.append("note:             held-out entropy is far above the training entropy: the "
+                     "VLMM may overfit (try a smaller --max-memory or larger --epsilon, or more data)")
+    return "\n".join(lines)
+
+
+def run(args):
+    import numpy as np
+
+    from gltrack.cli import UsageError
+    from gltrack.motion.behaviour import BehaviourModel
+    from gltrack.motion.retarget import load_motion
+
+    _check(args, UsageError)
+    seqs, clips, names = [], [], None
+    for m in args.motion:
+        _, dofs, params, _ = load_motion(m, args.preset, fps=args.fps)
+        if names is not None and dofs.names != names:
+            raise ValueError(f"{m}: its DOFs differ from the first clip's")
+        names = dofs.names
+        min_frames = 4 if args.heldout == 0 else int(np.ceil(2 / (1 - args.heldout))) + 2
+        if len(params) < min_frames:
+            raise ValueError(f"{m}: only {len(params)} frames at {args.fps:g} frames/s; "
+                             f"at least {min_frames} are needed")
+        seqs.append(params)
+        clips.append((m, len(params)))
+    rng = np.random.default_rng(args.seed)
+    model = BehaviourModel.fit(seqs, args.fps, rng, holdout=args.heldout,
+                               augment=not args.no_augment, k_max=args.k_max,
+                               max_memory=args.max_memory, epsilon=args.epsilon,
+                               min_count=args.min_count, dof_names=names[6:])
+    model.info["preset"] = args.preset
+    model.info["clips"] = [str(p) for p, _ in clips]
+    model.save(args.out)
+    print(format_report(model.report(), clips))
+    print(f"wrote {args.out}")
+    return 0

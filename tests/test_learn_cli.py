@@ -1,0 +1,90 @@
+"""``gltrack learn``: BVH clips in, behaviour model out, report printed."""
+import numpy as np
+import pytest
+
+from gltrack.bench.vlmm import periodic_motion
+from gltrack.body.model import BodyModel
+from gltrack.cli import main
+from gltrack.motion.behaviour import BehaviourModel
+from gltrack.motion.bvh import write_bvh
+from gltrack.motion.export import params_to_bvh
+from gltrack.motion.retarget import load_motion
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    """A synthetic walk-like BVH: 4 s at 30 frames/s written from the gltrack body with
+    MotionBuilder joint names (the convention CMU conversions use)."""
+    body = BodyModel.build(preset="full", lod=0)
+    P = periodic_motion(body, 120, period=1.0)
+    path = tmp_path_factory.mktemp("learn") / "walk.bvh"
+    bvh = params_to_bvh(body, P, 30.0)
+    side = {"clavicle": "Shoulder", "shoulder": "Arm", "elbow": "ForeArm", "wrist": "Hand",
+            "hip": "UpLeg", "knee": "Leg", "ankle": "Foot"}
+    rename = {"pelvis": "Hips", "spine_lower": "LowerBack", "spine_upper": "Spine",
+              "neck": "Neck", "head": "Head"}
+    for j, s in side.items():
+        rename[f"l_{j}"], rename[f"r_{j}"] = f"Left{s}", f"Right{s}"
+    bvh.names = [rename[n] for n in bvh.names]
+    bvh.end_sites = {rename[k]: v for k, v in bvh.end_sites.items()}
+    write_bvh(path, bvh)
+    return path
+
+
+def test_learn_end_to_end(clip, tmp_path, capsys):
+    out = tmp_path / "model.npz"
+    rc = main(["learn", "--motion", str(clip), "--out", str(out), "--max-memory", "6",
+               "--heldout", "0.25"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    m = BehaviourModel.load(out)
+    assert m.n_angles == 19 and m.fps == 30.0  # preset 25: 25 - 6 angles
+    assert m.dof_names[0].startswith("spine_lower")
+    rep = m.report()
+    assert rep["max_memory_used"] <= 6 and rep["n_clusters"] >= 2
+    assert rep["heldout_entropy"] is not None and rep["heldout_frames"] == 30
+    assert f"{rep['train_entropy']:.3f}" in text and f"{rep['heldout_entropy']:.3f}" in text
+    assert "clusters:" in text and str(out) in text
+    # augmentation multiplies the training frames (3 speeds x 3 smoothings)
+    rc = main(["learn", "--motion", str(clip), "--out", str(tmp_path / "b.npz"), "--no-augment",
+               "--heldout", "0.25"])
+    assert rc == 0
+    n_plain = BehaviourModel.load(tmp_path / "b.npz").report()["train_frames"]
+    assert n_plain == 90 and rep["train_frames"] > 7 * n_plain
+
+
+def test_learnt_model_predicts_the_clip(clip, tmp_path):
+    out = tmp_path / "m.npz"
+    assert main(["-q", "learn", "--motion", str(clip), str(clip), "--out", str(out),
+                 "--heldout", "0", "--preset", "full", "--fps", "30"]) == 0
+    m = BehaviourModel.load(out)
+    _, dofs, P, _ = load_motion(clip, "full", fps=30)
+    assert m.n_angles == dofs.size - 6 and m.report()["heldout_entropy"] is None
+    X = m.features(P)
+    labels = m.label(X)
+    # the learnt VLMM predicts the clip's own cluster sequence with low entropy
+    assert m.vlmm.entropy([labels]) < 1.0
+    assert len(np.unique(labels)) >= 2
+
+
+def test_usage_errors(clip, tmp_path, capsys):
+    assert main(["learn", "--motion", str(tmp_path / "nope.bvh"), "--out",
+                 str(tmp_path / "m.npz")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main(["learn", "--motion", str(clip), "--out", str(tmp_path / "m.npz"),
+                 "--heldout", "1.5"]) == 2
+    assert main(["learn", "--motion", str(clip), "--out", str(tmp_path / "x" / "m.npz")]) == 2
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n")
+    assert main(["learn", "--motion", str(bad), "--out", str(tmp_path / "m.npz")]) == 1
+    assert "bad.bvh" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_learn_on_cmu_walk(shared, tmp_path, capsys):
+    clip = shared / "mocap" / "cmu_02_01_walk.bvh"
+    if not clip.is_file():
+        pytest.skip(f"{clip} absent")
+    assert main(["learn", "--motion", str(clip), "--out", str(tmp_path / "w.npz")]) == 0
+    rep = BehaviourModel.load(tmp_path / "w.npz").report()
+    assert rep["n_clusters"] >= 2 and rep["train_entropy"] < rep["heldout_entropy"] + 1.0
