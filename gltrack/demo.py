@@ -73,7 +73,8 @@ def run_demo(out="gltrack-demo", *, seed: int = 0, progress: bool = True, overwr
         ds = Dataset.open(ds_dir)
         m = evaluate(load_results(res_dir), ds.groundtruth())
         write_json(m, res_dir / "metrics.json")
-        video = render_overlay(res_dir, ds_dir, out / f"{rig}_overlay.mp4", progress=progress)
+        video = render_overlay(res_dir, ds_dir, out / f"{rig}_overlay.mp4", progress=progress,
+                               min_height=432)
         metrics_by_rig[f"{rig} ({method})"] = m
         summary["rigs"][rig] = {
             "method": method, "mean_joint_error_mm": m["mean_joint_error_mm"],

@@ -348,7 +348,7 @@ def open_video_writer(out, fps: float, size):
 
 
 def render_overlay(result, dataset, out, cameras="all", max_frames=None, progress=True,
-                   fps=None, preset=None) -> Path:
+                   fps=None, preset=None, min_height: int | None = None) -> Path:
     """Write an overlay video of a tracking result on its dataset.
 
     Parameters
@@ -363,6 +363,9 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
     progress : bool, show a tqdm bar
     fps : float, optional, video frame rate (default: the dataset's)
     preset : str, optional, DOF preset of the result (default: the dataset's body)
+    min_height : int, optional
+        Enlarge small frames (e.g. a 176x144 ToF camera) by an integer factor, nearest
+        neighbour, until they are at least this tall, so the video is watchable.
 
     Returns
     -------
@@ -371,10 +374,10 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
         Frames are padded with black to even width and height (what MPEG-4 encoders need).
     """
     with OverlayRenderer(result, dataset, cameras, preset) as r:
-        return _write_video(r, out, max_frames, progress, fps)
+        return _write_video(r, out, max_frames, progress, fps, min_height)
 
 
-def _write_video(r, out, max_frames, progress, fps):
+def _write_video(r, out, max_frames, progress, fps, min_height=None):
     from tqdm import tqdm
 
     n = len(r) if max_frames is None else min(len(r), int(max_frames))
@@ -387,6 +390,9 @@ def _write_video(r, out, max_frames, progress, fps):
     try:
         for i in tqdm(range(n), desc="overlay", unit="frame", disable=not progress):
             img = r.frame(i)
+            if min_height and img.shape[0] < min_height:
+                k = -(-int(min_height) // img.shape[0])
+                img = cv2.resize(img, None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST)
             h, w = img.shape[:2]
             if h % 2 or w % 2:
                 img = cv2.copyMakeBorder(img, 0, h % 2, 0, w % 2, cv2.BORDER_CONSTANT, value=0)
