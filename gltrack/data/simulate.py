@@ -45,7 +45,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import multiprocessing
 import os
 import sys
 import time
@@ -662,6 +661,6 @@ def synthesize_in_subprocess(*args, timeout: float | None = None, **kwargs) -> P
     For processes that hold a moderngl context or imported PyOpenGL for another platform (the
     demo, tests). Arguments as for :func:`synthesize` (all picklable); ``timeout`` in seconds.
     """
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Pool(1) as pool:
-        return Path(pool.apply_async(_child, (args, kwargs)).get(timeout))
+    from gltrack.spawn import run_in_child
+
+    return Path(run_in_child(_child, (args, kwargs), timeout=timeout))

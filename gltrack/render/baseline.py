@@ -21,7 +21,6 @@ so keep the body in front of ``near`` when comparing the two.
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import statistics
 import sys
@@ -279,6 +278,6 @@ def run_baseline_in_subprocess(kind: str, *args, timeout: float | None = 600, **
     """
     if kind not in _KINDS:
         raise ValueError(f"unknown baseline job {kind!r}; choose one of {', '.join(_KINDS)}")
-    ctx = multiprocessing.get_context("spawn")
-    with ctx.Pool(1) as pool:
-        return pool.apply_async(_child, (kind, args, kwargs)).get(timeout)
+    from gltrack.spawn import run_in_child
+
+    return run_in_child(_child, (kind, args, kwargs), timeout=timeout)
