@@ -50,7 +50,7 @@ def run(args):
     else:
         mod = importlib.import_module(f"gltrack.bench.{args.suite}")
         res = getattr(mod, f"bench_{args.suite}")(quick=args.quick, seed=args.seed)
-        fmt = getattr(mod, "format_table", None)
+        fmt = getattr(mod, "format_table", None) or getattr(mod, "table", None)
         text = fmt(res) if fmt else json.dumps(res, indent=1)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2, default=float) + "\n")

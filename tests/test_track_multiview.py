@@ -1,0 +1,164 @@
+"""Multi-view particle-filter trackers (Bandouch 2009) through the CLI, on a tiny rendered dataset.
+
+The dataset is rendered with the CPU reference rasteriser (no GL, no simulator): 4 cameras of
+128x96 around a person walking quickly (about 8 cm per frame at 15 frames/s) while raising an
+arm and bending the knees.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from gltrack.bench.multiview import method_configs, render_dataset, ring_cameras
+from gltrack.body.model import BodyModel
+from gltrack.cli import main
+from gltrack.eval.metrics import EVAL_JOINTS, common_names, mean_joint_error
+
+N_FRAMES = 5
+FPS = 15.0
+
+
+def motion(body, n):
+    d, sk = body.dofs, body.skeleton
+    t = np.arange(n) / FPS
+    P = np.repeat(d.zero(sk)[None], n, axis=0)
+    P[:, 2] += 1.2 * t
+    P[:, 0] += 0.3 * t
+    P[:, d.index("pelvis_ry")] = 0.4 * t
+    P[:, d.index("l_shoulder_rz")] = -1.2 + 2.0 * t
+    P[:, d.index("r_shoulder_rz")] = 1.2 - 1.0 * t
+    P[:, d.index("l_elbow_ry")] = -0.3 - 1.5 * t
+    P[:, d.index("l_hip_rx")] = -1.5 * t
+    P[:, d.index("r_hip_rx")] = 1.0 * t
+    P[:, d.index("l_knee_rx")] = 0.2 + 2.0 * t
+    return d.validate(P)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    body = BodyModel.build()
+    P = motion(body, N_FRAMES)
+    out = tmp_path_factory.mktemp("mv") / "ds"
+    cams = ring_cameras(4, (128, 96), radius=3.0, target=(0.1, 0.9, 0.2))
+    render_dataset(out, body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
+    return out, body, P
+
+
+def _track(dataset_path, tmp_path, method, config, extra=()):
+    cfg = tmp_path / f"{method}.toml"
+    cfg.write_text("\n".join(f"{k} = {json.dumps(v)}" for k, v in config.items()) + "\n")
+    out = tmp_path / f"res_{method}"
+    rc = main(["-q", "track", str(dataset_path), "--method", method, "--out", str(out),
+               "--config", str(cfg), "--seed", "1", *extra])
+    assert rc == 0
+    js = tmp_path / f"{method}.json"
+    assert main(["-q", "eval", str(out), str(dataset_path), "--json", str(js)]) == 0
+    metrics = json.loads(js.read_text())
+    frames = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines() if line]
+    return metrics, frames
+
+
+def _summary(metrics):
+    return metrics.get("summary", metrics)["mean_joint_error_mm"]
+
+
+def static_error_mm(body, P):
+    """Mean joint error of holding the initial pose fixed (computed without the tracker)."""
+    J = body.joints(P)
+    names, ip, ig = common_names(body.skeleton.names, body.skeleton.names, EVAL_JOINTS)
+    still = np.repeat(J[:1], len(J), axis=0)
+    return 1000.0 * float(np.mean(mean_joint_error(still[:, ip], J[:, ig])))
+
+
+def test_hps_tracks_better_than_standing_still(dataset, tmp_path):
+    path, body, P = dataset
+    static = static_error_mm(body, P)
+    assert static > 120.0  # the motion is large enough for the comparison to mean something
+    metrics, frames = _track(path, tmp_path, "hps", {"particles": 60, "tile": 64})
+    err = _summary(metrics)
+    assert err < 70.0, err
+    assert err < 0.5 * static, (err, static)
+    assert len(frames) == N_FRAMES
+    # 60 particles: 6 torso layers, 8 limb layers, 1 re-weighting, + 1 for the estimate's score
+    assert all(f["evaluations"] == 60 * 15 + 1 for f in frames), [f["evaluations"] for f in frames]
+
+
+@pytest.mark.parametrize("method,config", [
+    ("sir", {"particles": 200, "weights": "exp", "appearance": False}),
+    ("apf", {"particles": 60, "layers": 4}),
+    ("ps", {"particles": 40, "environment": False}),
+])
+def test_other_methods_run_and_count_evaluations(dataset, tmp_path, method, config):
+    path, body, P = dataset
+    metrics, frames = _track(path, tmp_path, method, config, ["--frames", "0:3"])
+    per = {"sir": 200, "apf": 60 * 4, "ps": 40 * 10}[method]
+    assert [f["evaluations"] for f in frames] == [per + 1] * 3
+    # Three frames cover too little motion for an accuracy ranking; it must not diverge though.
+    assert _summary(metrics) < 150.0
+
+
+def test_options_are_validated(dataset, tmp_path):
+    path, _, _ = dataset
+    cfg = tmp_path / "bad.toml"
+    for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n"):
+        cfg.write_text(text)
+        rc = main(["-q", "track", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
+                   "--config", str(cfg), "--overwrite"])
+        assert rc == 1, text
+
+
+def test_method_configs_share_the_budget():
+    cfg = method_configs(2000, n_partitions=10)
+    evals = {"sir": cfg["sir"][1]["particles"],
+             "apf": cfg["apf"][1]["particles"] * cfg["apf"][1]["layers"],
+             "ps": cfg["ps"][1]["particles"] * 10,
+             "hps": cfg["hps"][1]["particles"] * 15}
+    assert all(abs(v - 2000) <= 15 for v in evals.values()), evals
+    assert cfg["hps/4"][1]["particles"] == cfg["hps"][1]["particles"] // 4
+
+
+def test_background_subtraction_foreground_matches_silhouettes(dataset):
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import MultiviewObservation, MultiviewOptions
+
+    path, _, _ = dataset
+    ds = Dataset.open(path)
+    obs = MultiviewObservation(ds, MultiviewOptions(foreground="background"),
+                               np.random.default_rng(0))
+    assert obs.mode == "background"
+    images, masks = obs(2)
+    for c, m in enumerate(masks):
+        gt = ds.gtmask(2, c)
+        iou = np.count_nonzero(m & gt) / np.count_nonzero(m | gt)
+        assert iou > 0.7, (c, iou)
+    assert MultiviewObservation(ds, MultiviewOptions(), None).mode == "dataset"
+
+
+def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
+    from gltrack.data.dataset import Dataset
+    from gltrack.sample import bandouch_weights
+    from gltrack.track.multiview import HPSTracker, MultiviewOptions
+
+    path, body, P = dataset
+    ds = Dataset.open(path)
+    tr = HPSTracker(ds, body, ctx, MultiviewOptions(particles=12), np.random.default_rng(0))
+    try:
+        tr.start(0, P[0])
+        tr.observe(3)
+        rng = np.random.default_rng(5)
+        X = np.repeat(P[3][None], 8, axis=0)
+        X[1:] += rng.normal(0.0, 0.15, X[1:].shape) * (np.arange(8)[1:, None] / 4.0)
+        X = body.dofs.validate(X)
+        e_s, c_a = tr.scores(X)
+        w = tr.weights(X)
+        np.testing.assert_allclose(w, bandouch_weights(e_s, c_a, 0.7, 0.3))
+        assert np.argmax(w) == 0 and np.argmin(e_s) == 0
+        tr.opt.weights = "exp"
+        w2 = tr.weights(X)
+        assert np.argmax(w2) == 0 and w2[0] == pytest.approx(np.max(w2))
+        assert not np.allclose(w2 / w2.max(), w / w.max())
+        # A different frame's observation changes the silhouette errors of the same poses.
+        tr.observe(0)
+        assert not np.array_equal(tr.scores(X)[0], e_s)
+    finally:
+        tr.close()
