@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 #: software GL, large enough to show every phase of the performance.
 FPS = 15.0
 SECONDS = 4.0
-MULTIVIEW_OPTIONS = {"particles": 150}
+MULTIVIEW_OPTIONS = {"particles": 100}
 
 
 def _pick(methods, *names):

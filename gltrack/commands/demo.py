@@ -8,12 +8,18 @@ def add_arguments(p):
     p.add_argument("--out", default="gltrack-demo", help="output folder (reused; its demo files are replaced)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the simulator and the trackers")
     p.add_argument("--rig", choices=["depth", "multiview", "both"], default="both", help="which rigs to run")
+    p.add_argument("--seconds", type=float, default=4.0,
+                   help="length of the performance (walk, turn, arm raise, squat), seconds")
 
 
 def run(args):
     from gltrack.demo import format_summary, run_demo
 
     rigs = ("depth", "multiview") if args.rig == "both" else (args.rig,)
-    summary = run_demo(args.out, seed=args.seed, progress=not args.quiet, rigs=rigs)
+    if not 0.5 <= args.seconds <= 60:
+        from gltrack.cli import UsageError
+
+        raise UsageError(f"--seconds must be within 0.5..60, got {args.seconds}")
+    summary = run_demo(args.out, seed=args.seed, progress=not args.quiet, rigs=rigs, seconds=args.seconds)
     print(format_summary(summary))
     return 0
