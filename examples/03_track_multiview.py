@@ -23,8 +23,8 @@ def main(out=None):
     body = BodyModel.build()
     params = performance(body, fps=15.0, seconds=0.6)
     ds = synthesize_in_subprocess(params, body.skeleton, body.dofs, 15.0, "multiview", str(out / "data"),
-                                  seed=2, size=(160, 120), progress=False, overwrite=True)
-    timing = track(ds, "hps", out / "result", options={"particles": 60}, overwrite=True, progress=False)
+                                  seed=2, size=(240, 180), progress=False, overwrite=True)
+    timing = track(ds, "hps", out / "result", options={"particles": 100}, overwrite=True, progress=False)
     m = evaluate(load_results(out / "result"), Dataset.open(ds).groundtruth())
     print(f"tracked {timing['frames']} frames ({timing['evaluations'] // timing['frames']} evaluations each): "
           f"mean joint error {m['mean_joint_error_mm']:.0f} mm, MPJPE {m['mpjpe_mm']:.0f} mm")

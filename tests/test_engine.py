@@ -7,7 +7,6 @@ each candidate's sum must agree within 1 % of the reference's value (with a floo
 worth for near-zero sums).
 """
 import os
-import resource
 
 import numpy as np
 import pytest

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gltrack.commands import check_output_file
+
 NAME = "export"
 HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "
         "JSON")
@@ -46,14 +48,11 @@ def _format_and_out(args):
         res = Path(args.result)
         folder = res.parent if res.is_file() else res
         out = folder / f"poses{FORMATS[fmt]}"
+        if args.fps is not None and not args.fps > 0:
+            raise UsageError(f"--fps must be positive, got {args.fps}")
     else:
         out = Path(args.out)
-        if out.is_dir():
-            raise UsageError(f"--out {out} is a folder, not a file")
-        if not out.parent.is_dir():
-            raise UsageError(f"--out {out}: folder {out.parent} does not exist")
-    if args.fps is not None and not args.fps > 0:
-        raise UsageError(f"--fps must be positive, got {args.fps}")
+        check_output_file(out, args.fps, UsageError)
     return fmt, out
 
 

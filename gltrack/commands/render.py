@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gltrack.commands import check_output_file
+
 NAME = "render"
 HELP = ("overlay video: the tracked body, its skeleton and the ground truth drawn over the "
         "dataset's frames (cameras tiled)")
@@ -33,12 +35,7 @@ def run(args):
     out = Path(args.out)
     if out.suffix.lower() not in (".mp4", ".avi"):
         raise UsageError(f"--out {out}: use a .mp4 or .avi file name")
-    if out.is_dir():
-        raise UsageError(f"--out {out} is a folder, not a file")
-    if not out.parent.is_dir():
-        raise UsageError(f"--out {out}: folder {out.parent} does not exist")
-    if args.fps is not None and not args.fps > 0:
-        raise UsageError(f"--fps must be positive, got {args.fps}")
+    check_output_file(out, args.fps, UsageError)
     if args.max_frames is not None and args.max_frames < 1:
         raise UsageError(f"--max-frames must be at least 1, got {args.max_frames}")
     cams = args.camera.strip()

@@ -2,7 +2,9 @@
 
 ``performance(body, fps, seconds)`` returns (T, D) pose parameters: walk forward with swinging
 arms, turn by 90 degrees, raise both arms, squat and stand up, each phase blended into the next
-with smoothstep weights so velocities stay continuous. Amplitudes are everyday-motion values
+with smoothstep weights so velocities stay continuous. One performance lasts :data:`PERIOD`
+seconds whatever ``seconds`` asks for: a shorter request is its beginning, a longer one repeats
+it (walking on from where the last repeat ended). Amplitudes are everyday-motion values
 (hip swing 0.45 rad, knee up to 1.9 rad in the squat), all inside the joint limits of
 :mod:`gltrack.body.dofs`. The performance is deterministic; callers add noise where they want it.
 """
@@ -10,7 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-PHASES = (("walk", 0.0, 0.32), ("turn", 0.32, 0.5), ("raise", 0.5, 0.72), ("squat", 0.72, 1.0))
+# Phase windows as fractions of the period; the first starts and the last ends one ramp inside
+# the period so that a repeat continues without a jump.
+PHASES = (("walk", 0.06, 0.32), ("turn", 0.32, 0.5), ("raise", 0.5, 0.72), ("squat", 0.72, 0.94))
+#: Duration of one performance, seconds (phases are fractions of it).
+PERIOD = 4.0
 
 
 def _window(u, a, b, ramp=0.06):
@@ -28,14 +34,14 @@ def performance(body, fps: float = 30.0, seconds: float = 4.0) -> np.ndarray:
     ----------
     body : gltrack.body.model.BodyModel
     fps : frames per second
-    seconds : duration; the four phases scale with it
+    seconds : duration of the returned motion (see :data:`PERIOD`)
     """
     if fps <= 0 or seconds <= 0:
         raise ValueError("fps and seconds must be positive")
     d, sk = body.dofs, body.skeleton
     T = max(2, int(round(fps * seconds)))
     t = np.arange(T) / fps
-    u = t / seconds
+    u = (t / PERIOD) % 1.0
     names = {n: i for i, n in enumerate(d.names)}
     P = np.repeat(d.zero(sk)[None], T, axis=0)
 
@@ -51,11 +57,17 @@ def performance(body, fps: float = 30.0, seconds: float = 4.0) -> np.ndarray:
     step = walk + 0.5 * turn            # keep stepping while turning
     # Walk forward along +Z while in the walking phase; then stay where the walk ended.
     speed = 0.9 * walk
-    z = np.concatenate([[0.0], np.cumsum(speed[1:] / fps)])
-    P[:, 2] += z
+    # Walk along the current heading (so a repeat walks off in the new direction).
+    step_len = speed[1:] / fps
+    hd = (np.pi / 2) * np.floor(t / PERIOD)[1:]
+    P[:, 0] += np.concatenate([[0.0], np.cumsum(step_len * np.sin(hd))])
+    P[:, 2] += np.concatenate([[0.0], np.cumsum(step_len * np.cos(hd))])
     add("pelvis_ty", -0.02 * step * np.abs(gait))
-    heading = (np.pi / 2) * np.clip((u - PHASES[1][1]) / (PHASES[1][2] - PHASES[1][1]), 0, 1)
-    add("pelvis_ry", heading * (heading > 0))
+    # Turn by 90 degrees during the turn phase of every repeat; integrate so repeats continue.
+    turning = ((u >= PHASES[1][1]) & (u < PHASES[1][2])).astype(float)
+    rate = (np.pi / 2) / ((PHASES[1][2] - PHASES[1][1]) * PERIOD)
+    heading = np.concatenate([[0.0], np.cumsum(turning[1:] * rate / fps)])
+    add("pelvis_ry", heading)
     for side, sgn in (("l", 1.0), ("r", -1.0)):
         swing = sgn * gait * step
         add(f"{side}_hip_rx", -0.45 * swing)

@@ -326,7 +326,7 @@ class ResultsWriter:
 
 
 def _records_to_arrays(records, method, joint_names, marker_names, n_params):
-    n, j = len(records), len(joint_names)
+    j = len(joint_names)
     m = 0 if marker_names is None else len(marker_names)
     d = n_params or 0
 

@@ -45,7 +45,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 import sys
 import time
 import warnings
@@ -310,17 +309,9 @@ def table_polygons(corners, cameras) -> dict:
 # rendering with pyrender
 # ---------------------------------------------------------------------------------------------
 def _import_pyrender():
-    """pyrender on EGL; refuses when PyOpenGL was set up for another platform in this process."""
-    if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") != "egl":
-        raise RuntimeError("PyOpenGL was imported in this process for platform "
-                           f"{os.environ.get('PYOPENGL_PLATFORM')!r}; run the simulator through "
-                           "synthesize_in_subprocess()")
-    os.environ["PYOPENGL_PLATFORM"] = "egl"
-    if not hasattr(np, "infty"):  # pyrender 0.1.45 still uses the alias numpy 2 removed
-        np.infty = np.inf
-    import pyrender
+    from gltrack.render.pyrender_egl import import_pyrender
 
-    return pyrender
+    return import_pyrender("synthesize_in_subprocess()")
 
 
 def _gl_pose(cam: Camera) -> np.ndarray:

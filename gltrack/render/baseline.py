@@ -21,9 +21,7 @@ so keep the body in front of ``near`` when comparing the two.
 from __future__ import annotations
 
 import logging
-import os
 import statistics
-import sys
 import time
 
 import numpy as np
@@ -37,17 +35,9 @@ DEFAULT_ZFAR = 20.0
 
 
 def _import_pyrender():
-    """Import pyrender on EGL, refusing when PyOpenGL was already set up for another platform."""
-    if "OpenGL" in sys.modules and os.environ.get("PYOPENGL_PLATFORM") != "egl":
-        raise RuntimeError("PyOpenGL was imported in this process for platform "
-                           f"{os.environ.get('PYOPENGL_PLATFORM')!r}; run the pyrender baseline "
-                           "through run_baseline_in_subprocess()")
-    os.environ["PYOPENGL_PLATFORM"] = "egl"
-    if not hasattr(np, "infty"):  # pyrender 0.1.45 still uses the alias numpy 2 removed
-        np.infty = np.inf
-    import pyrender
+    from gltrack.render.pyrender_egl import import_pyrender
 
-    return pyrender
+    return import_pyrender("run_baseline_in_subprocess()")
 
 
 def _as_cameras(K, R, t):
