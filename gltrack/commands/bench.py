@@ -48,8 +48,12 @@ def run(args):
         res = bench_engine(quick=args.quick, with_baseline=not args.no_baseline, seed=args.seed)
         text = _table(res)
     else:
+        import inspect
+
         mod = importlib.import_module(f"gltrack.bench.{args.suite}")
-        res = getattr(mod, f"bench_{args.suite}")(quick=args.quick, seed=args.seed)
+        fn = getattr(mod, f"bench_{args.suite}")
+        kw = {"seed": args.seed} if "seed" in inspect.signature(fn).parameters else {}
+        res = fn(quick=args.quick, **kw)
         fmt = getattr(mod, "format_table", None) or getattr(mod, "table", None)
         text = fmt(res) if fmt else json.dumps(res, indent=1)
     if args.json:

@@ -13,6 +13,16 @@ Search: :func:`gltrack.sample.hillclimb.hill_climb` from the predicted pose, roo
 first, then the limbs (the i-th DOF of all four limbs in one GPU batch), each DOF on a grid of
 ``grid`` values over +-``search_sigmas`` sigmas, refined ``levels`` times.
 
+Observation (why it looks the way it does): with ``crop`` the tile shows a square window around
+the predicted body instead of the whole 176x144 sensor image (the paper's 128x128 crop). Without
+it a subject 5 m away covers ~100 pixels of a 64-pixel tile, limbs are under a pixel wide and the
+depth cost can hardly tell a lost leg from a tracked one (walk clip: 0.14 m -> 0.04 m mean marker
+error). The depth cost is multiplied by the area of a tile pixel at the subject's depth over
+``area_unit``, so its balance against the prior is the same for every tile size, crop and
+distance (the raw pixel sum grows 4x from tile 64 to 128, which weakened the prior 4x). The
+background margin grows with the ToF noise (``bg_sigmas``): a fixed 8 cm left speckle all over a
+far wall, which feeds the part detector false extrema.
+
 Evidence propagation (``method="hc+ep"`` / ``"ep"``) is added by :mod:`gltrack.track.ep` when
 available.
 """
@@ -23,14 +33,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gltrack.observe.depth import foreground_points, remove_background
+from gltrack.camera import Camera
+from gltrack.gl.programs import ProgramCache
+from gltrack.observe.depth import depth_tolerance, foreground_points, remove_background
 from gltrack.render.engine import DepthCostParams, ScoringEngine
 from gltrack.sample.hillclimb import hill_climb
-from gltrack.sample.partitions import hill_climb_order
+from gltrack.sample.partitions import default_partitions, hill_climb_order
 
 from .base import FrameEstimate, Tracker
 
 log = logging.getLogger(__name__)
+
+#: Limb partitions a recovery perturbation may target (``perturb_part``).
+PERTURB_PARTS = ("l_arm", "r_arm", "l_leg", "r_leg")
 
 
 @dataclass
@@ -47,6 +62,19 @@ class DepthOptions:
     velocity_damping : d in v_pred = d * v_prev
     batch_limbs : search corresponding DOFs of the four limbs in one batch
     bg_tolerance : metres; background-removal margin when an empty-scene frame exists
+    bg_sigmas : the margin grows by this many range-noise deviations of the difference of two
+        noisy frames (ToF noise grows with depth squared: 8 cm is below one sigma on a far wall)
+    range_noise_2m : metres, the sensor's range-noise deviation at 2 m (SR4000 data sheet: 1 cm)
+    crop : score a square window around the predicted body instead of the whole sensor image
+        (the paper's 128x128 crop); the tile then resolves limbs whatever the subject's distance
+    crop_margin : metres added on every side of the predicted joints' bounding box
+    area_unit : m^2; the depth cost is expressed in units of this surface area at the subject's
+        depth (a pixel's footprint times its cost), so the prior balance does not change with
+        tile size, crop or distance. 0 = raw pixel sums (tile pixels).
+    refine_passes : extra hill-climbing sweeps restricted to the limbs, then one over the torso
+    perturb_frame, perturb_part, perturb_rad : recovery test; at ``perturb_frame`` (-1 = never)
+        the state's DOFs of limb ``perturb_part`` (l_arm, r_arm, l_leg, r_leg) are shifted by
+        ``perturb_rad`` radians before the frame is tracked
     """
 
     tile: int = 64
@@ -58,10 +86,46 @@ class DepthOptions:
     shrink: float = 0.4
     passes: int = 1
     search_sigmas: float = 2.0
-    prior_weight: float = 1.0
+    prior_weight: float = 0.2
     velocity_damping: float = 0.5
     batch_limbs: bool = True
     bg_tolerance: float = 0.08
+    bg_sigmas: float = 3.0
+    range_noise_2m: float = 0.01
+    crop: bool = True
+    crop_margin: float = 0.25
+    area_unit: float = 0.0016
+    refine_passes: int = 0
+    perturb_frame: int = -1
+    perturb_part: str = "r_arm"
+    perturb_rad: float = 0.5
+
+    def check(self):
+        """Raise ValueError for options outside their domain (the config names the key)."""
+        bad = []
+        if self.tile not in (16, 32, 64, 128, 256):
+            bad.append(f"tile = {self.tile} (a power of two in 16..256)")
+        for k in ("scale", "shrink", "search_sigmas"):
+            if not getattr(self, k) > 0:
+                bad.append(f"{k} = {getattr(self, k)} (must be > 0)")
+        if not 0 < self.shrink < 1:
+            bad.append(f"shrink = {self.shrink} (must be in (0, 1))")
+        for k in ("levels", "passes"):
+            if getattr(self, k) < 1:
+                bad.append(f"{k} = {getattr(self, k)} (must be >= 1)")
+        if self.grid < 2:
+            bad.append(f"grid = {self.grid} (must be >= 2)")
+        for k in ("penalty", "prior_weight", "bg_tolerance", "bg_sigmas", "range_noise_2m",
+                  "crop_margin", "area_unit", "refine_passes"):
+            if getattr(self, k) < 0:
+                bad.append(f"{k} = {getattr(self, k)} (must be >= 0)")
+        if self.perturb_part not in PERTURB_PARTS:
+            bad.append(f"perturb_part = {self.perturb_part!r} (one of {', '.join(PERTURB_PARTS)})")
+        if not 0 <= self.velocity_damping <= 1:
+            bad.append(f"velocity_damping = {self.velocity_damping} (must be in [0, 1])")
+        if bad:
+            raise ValueError("invalid depth-tracker option(s): " + "; ".join(bad))
+        return self
 
 
 class DepthObservation:
@@ -78,6 +142,9 @@ class DepthObservation:
         bg = dataset.background(self.index)
         self.background = self._undistort(bg) if bg is not None else None
         self.tolerance = options.bg_tolerance
+        if self.background is not None and options.bg_sigmas > 0:
+            self.tolerance = depth_tolerance(self.background, options.bg_tolerance,
+                                             options.bg_sigmas, options.range_noise_2m)
         if self.background is None:
             log.warning("%s: no empty-scene depth frame; only far pixels are removed", dataset.path)
 
@@ -91,28 +158,120 @@ class DepthObservation:
         return remove_background(z, self.background, tolerance=self.tolerance)
 
 
+def crop_camera(pinhole: Camera, points, tile: int, margin: float) -> tuple[Camera, float]:
+    """A square ``tile x tile`` camera looking at ``points`` through ``pinhole``'s sensor.
+
+    Parameters
+    ----------
+    pinhole : Camera, undistorted sensor camera
+    points : (P, 3) float, metres, world points to frame (e.g. the predicted joints)
+    tile : int, pixels
+    margin : float, metres added on every side at the points' median depth
+
+    Returns
+    -------
+    camera : Camera, same pose as ``pinhole``, ``tile x tile`` pixels of equal metric size; the
+        window is shifted to stay inside the sensor's field of view when it fits
+    depth : float, metres, median camera depth of ``points``
+    """
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ pinhole.R.T + pinhole.t
+    P = P[P[:, 2] > 0.1]
+    if len(P) == 0:
+        raise ValueError("crop_camera: no point in front of the camera")
+    zc = float(np.median(P[:, 2]))
+    a, b = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
+    m = margin / zc
+    lo_a, hi_a = (-0.5 - pinhole.cx) / pinhole.fx, (pinhole.width - 0.5 - pinhole.cx) / pinhole.fx
+    lo_b, hi_b = (-0.5 - pinhole.cy) / pinhole.fy, (pinhole.height - 0.5 - pinhole.cy) / pinhole.fy
+    side = min(max(a.max() - a.min(), b.max() - b.min()) + 2 * m, max(hi_a - lo_a, hi_b - lo_b))
+
+    def place(lo, hi, c):
+        # keep the window inside the sensor where possible: model pixels outside it would be
+        # charged for surface the sensor cannot see
+        start = c - side / 2
+        if side <= hi - lo:
+            start = min(max(start, lo), hi - side)
+        else:
+            start = 0.5 * (lo + hi) - side / 2
+        return start
+
+    a0 = place(lo_a, hi_a, 0.5 * (a.min() + a.max()))
+    b0 = place(lo_b, hi_b, 0.5 * (b.min() + b.max()))
+    f = tile / side
+    K = np.array([[f, 0, -a0 * f - 0.5], [0, f, -b0 * f - 0.5], [0, 0, 1]])
+    return Camera(pinhole.name, pinhole.kind, tile, tile, K, np.zeros(5), pinhole.R, pinhole.t), zc
+
+
+def resample_depth(z, source: Camera, target: Camera) -> np.ndarray:
+    """Nearest-neighbour resampling of a depth image between two cameras with the same pose.
+
+    Pixel centres are mapped exactly (``cv2.resize``'s nearest neighbour is off by up to a
+    source pixel when shrinking); target pixels outside the source image are 0 (unobserved).
+
+    Parameters
+    ----------
+    z : (H, W) float, metres, at ``source``'s resolution
+    source, target : Camera, undistorted, same R and t
+
+    Returns
+    -------
+    (target.height, target.width) float32, metres
+    """
+    z = np.asarray(z, dtype=np.float32)
+    u = np.rint(source.cx + source.fx * (np.arange(target.width) - target.cx) / target.fx).astype(int)
+    v = np.rint(source.cy + source.fy * (np.arange(target.height) - target.cy) / target.fy).astype(int)
+    ok_u = (u >= 0) & (u < z.shape[1])
+    ok_v = (v >= 0) & (v < z.shape[0])
+    out = z[np.clip(v, 0, z.shape[0] - 1)[:, None], np.clip(u, 0, z.shape[1] - 1)[None, :]]
+    return np.where(ok_v[:, None] & ok_u[None, :], out, 0).astype(np.float32)
+
+
 class HillClimbDepthTracker(Tracker):
     """Ganapathi's model-based hill climbing on the GPU depth likelihood."""
 
     method = "hc"
 
     def __init__(self, dataset, body, ctx, options: DepthOptions | None = None, rng=None):
-        self.opt = options or DepthOptions()
+        self.opt = (options or DepthOptions()).check()
         self.body = body
+        self.ctx = ctx
         self.obs = DepthObservation(dataset, self.opt)
-        params = DepthCostParams(scale=self.opt.scale, penalty=self.opt.penalty, smooth=self.opt.smooth)
-        self.engine = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, [self.obs.pinhole],
-                                    tile=self.opt.tile, depth_params=params)
+        self.params = DepthCostParams(scale=self.opt.scale, penalty=self.opt.penalty,
+                                      smooth=self.opt.smooth)
+        self.programs = ProgramCache(ctx)
+        self.engine = None
+        self._reduction = "auto"
+        self.view = None
+        self.weight = 1.0
+        if not self.opt.crop:
+            self._make_engine(self.obs.pinhole)
         self.sigma = body.dofs.sigma_at(dataset.fps)
         self.order = hill_climb_order(body.dofs, group_limbs=self.opt.batch_limbs)
+        parts = default_partitions(body.dofs)
+        self.torso_dofs = [i for i in self.order if isinstance(i, int)]
+        self.limb_order = [g for g in self.order if not isinstance(g, int)] or \
+            [int(i) for k in PERTURB_PARTS if k in parts for i in parts[k]]
+        self.parts = parts
         self.x = None
         self.v = None
         self.rng = rng
 
+    def _make_engine(self, camera):
+        if self.engine is not None:
+            self.engine.release()
+        self.engine = ScoringEngine(self.ctx, self.body.mesh, self.body.skeleton.n_joints, [camera],
+                                    tile=self.opt.tile, depth_params=self.params,
+                                    reduction=self._reduction, programs=self.programs)
+        self.view = camera
+
     # -- objective ------------------------------------------------------------------------
     def depth_cost(self, X: np.ndarray) -> np.ndarray:
-        """(N,) summed depth cost of N poses against the current observation."""
-        return self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0]
+        """(N,) depth cost of N poses against the current observation, in ``area_unit``s
+        (tile pixels when ``area_unit`` is 0)."""
+        c = self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0] * self.weight
+        if self._reduction == "auto":
+            self._reduction = self.engine.reduction  # timed once; later engines reuse it
+        return c
 
     def objective(self, x_pred):
         w = 0.5 * self.opt.prior_weight
@@ -124,31 +283,100 @@ class HillClimbDepthTracker(Tracker):
 
         return cost
 
-    def refine(self, x_start, x_pred, steps=None):
-        """Hill-climb from ``x_start`` under the prior centred on ``x_pred``."""
+    def _climb(self, cost, x, order, steps, levels):
         d = self.body.dofs
-        return hill_climb(self.objective(x_pred), x_start, self.order,
-                          self.opt.search_sigmas * self.sigma if steps is None else steps,
-                          levels=self.opt.levels, grid=self.opt.grid, shrink=self.opt.shrink,
-                          batch_independent=self.opt.batch_limbs, lower=d.lower, upper=d.upper,
-                          passes=self.opt.passes)
+        return hill_climb(cost, x, order, steps, levels=levels, grid=self.opt.grid,
+                          shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
+                          lower=d.lower, upper=d.upper, passes=self.opt.passes)
+
+    def refine(self, x_start, x_pred, steps=None, levels=None, extra=None):
+        """Hill-climb from ``x_start`` under the prior centred on ``x_pred``.
+
+        One coarse-to-fine sweep down the kinematic chain, then ``refine_passes`` (or ``extra``)
+        sweeps over the limbs only at half the step (the limbs were searched while the torso
+        was still moving), each followed by a torso re-check at a quarter of the step.
+
+        Returns
+        -------
+        HillClimbResult with the evaluations of all sweeps.
+        """
+        cost = self.objective(x_pred)
+        steps = self.opt.search_sigmas * self.sigma if steps is None else np.asarray(steps)
+        levels = self.opt.levels if levels is None else levels
+        res = self._climb(cost, x_start, self.order, steps, levels)
+        evals, calls = res.evaluations, res.calls
+        for _ in range(self.opt.refine_passes if extra is None else extra):
+            for order, h in ((self.limb_order, 0.5), (self.torso_dofs, 0.25)):
+                if not order:
+                    continue
+                r = self._climb(cost, res.x, order, h * steps, max(1, levels - 1))
+                evals, calls = evals + r.evaluations, calls + r.calls
+                if r.cost <= res.cost:
+                    res = r
+        return type(res)(res.x, res.cost, evals, calls)
 
     # -- tracking -------------------------------------------------------------------------
     def start(self, frame, params, velocity=None):
         self.x = self.body.dofs.validate(params)[0]
         self.v = np.zeros_like(self.x) if velocity is None else np.asarray(velocity, float).copy()
 
-    def observe(self, frame):
+    def set_view(self, z, pose=None, margin=None):
+        """Upload the observation ``z`` for scoring, cropped around ``pose`` when ``crop`` is on.
+
+        Also sets the area weight of the depth cost (see ``area_unit``).
+        """
+        margin = self.opt.crop_margin if margin is None else margin
+        pin = self.obs.pinhole
+        pts = self.body.joints(np.asarray(pose)[None])[0] if pose is not None else None
+        if self.opt.crop:
+            if pts is None:
+                pts = foreground_points(z, pin)
+                if len(pts) == 0:
+                    pts = pin.center[None] + pin.R[2] * 3.0  # nothing seen: look 3 m ahead
+            cam, zc = crop_camera(pin, pts, self.opt.tile, margin)
+            self._make_engine(cam)
+            self.engine.set_depth(0, resample_depth(z, pin, cam))
+        else:
+            self.engine.set_depth(0, z)
+            cam = self.engine.views[0].cam_tile
+            zc = float(np.median((pts @ pin.R.T + pin.t)[:, 2])) if pts is not None else 3.0
+        a_px = zc * zc / (cam.fx * cam.fy)
+        self.weight = a_px / self.opt.area_unit if self.opt.area_unit > 0 else 1.0
+
+    def observe(self, frame, pose=None):
+        """Read frame ``frame``, upload it around ``pose`` (default: the prediction) and return
+        the full background-subtracted (H, W) depth image, metres."""
         z = self.obs(frame)
-        self.engine.set_depth(0, z)
+        if pose is None and self.x is not None:
+            pose = self.predict()
+        self.set_view(z, pose)
         return z
 
     def predict(self):
         return self.body.dofs.validate(self.x + self.opt.velocity_damping * self.v)[0]
 
+    def perturb(self, part: str, radians: float):
+        """Add ``radians`` to every rotation DOF of limb ``part`` of the current state (a
+        recovery test: the tracker has lost that limb). Velocity is left as it was."""
+        if part not in self.parts:
+            raise ValueError(f"perturb_part must be one of {sorted(self.parts)}, got {part!r}")
+        if self.x is None:
+            raise RuntimeError("start() the tracker first")
+        d = self.body.dofs
+        x = self.x.copy()
+        idx = self.parts[part]
+        x[idx] = np.clip(x[idx] + radians, d.lower[idx], d.upper[idx])
+        self.x = x
+        log.info("perturbed %s by %.2f rad", part, radians)
+
+    def _maybe_perturb(self, frame):
+        if self.opt.perturb_frame >= 0 and frame == self.opt.perturb_frame:
+            self.perturb(self.opt.perturb_part, self.opt.perturb_rad)
+
     def step(self, frame):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
+        self._maybe_perturb(frame)
         self.observe(frame)
         x_pred = self.predict()
         res = self.refine(x_pred, x_pred)
@@ -166,7 +394,7 @@ class HillClimbDepthTracker(Tracker):
         from the body's rest pose, its heading faces the camera. Three coarse-to-fine passes with
         a wide grid let the torso and limbs settle.
         """
-        z = self.observe(frame)
+        z = self.obs(frame)
         pts = foreground_points(z, self.obs.pinhole)
         if len(pts) < 50:
             raise ValueError(f"frame {frame}: too few foreground depth pixels ({len(pts)}) to initialise")
@@ -181,17 +409,20 @@ class HillClimbDepthTracker(Tracker):
             if name in d.names:
                 x[d.index(name)] = val
         x = d.validate(x)[0]
+        self.set_view(z, x, margin=max(self.opt.crop_margin, 0.5))
         wide = 6.0 * self.sigma
         wide[:3] = 0.3
         flat = self.opt.prior_weight
         self.opt.prior_weight = 0.0
         try:
             for _ in range(3):
-                x = self.refine(x, x, steps=wide).x
+                x = self.refine(x, x, steps=wide, extra=0).x
                 wide = wide * 0.5
         finally:
             self.opt.prior_weight = flat
         return x
 
     def close(self):
-        self.engine.release()
+        if self.engine is not None:
+            self.engine.release()
+        self.programs.release()

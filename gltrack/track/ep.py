@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
 
 from gltrack.evidence.associate import evidence_propagation
 from gltrack.evidence.classifier import PartClassifier
@@ -98,6 +97,7 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
     def step(self, frame):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
+        self._maybe_perturb(frame)
         z = self.observe(frame)
         x_pred = self.predict()
         cost = self.objective(x_pred)

@@ -100,6 +100,8 @@ class MultiviewOptions:
     shape_weight, appearance_weight : alpha and beta of eq. 2
     sharpness : lambda of the "exp" weights (per unit of e_S / foreground area)
     estimate : "mean" (weighted mean, default) or "best" (highest-weight particle)
+    velocity : fraction of the last frame's change of the estimate added to every particle before
+        diffusion (0 = Bandouch's "last state + diffusion"; 1 = constant velocity)
     """
 
     particles: int = 0
@@ -119,6 +121,7 @@ class MultiviewOptions:
     appearance_weight: float = 0.3
     sharpness: float = 20.0
     estimate: str = "mean"
+    velocity: float = 0.0
 
     def __post_init__(self):
         def choice(name, allowed):
@@ -354,15 +357,20 @@ class MultiviewTracker(Tracker):
                 self.body.mesh, self.body.skinning(x[None])[0], self.obs.pinholes, images, masks,
                 engine=self.engine, rng=self.rng)
         self.frames_done = 0
+        self.last = x
+        self.velocity = np.zeros_like(x) if velocity is None else np.asarray(velocity, float)
 
     def step(self, frame):
         if self.particles is None:
             raise RuntimeError("start() the tracker first")
         images, fgs, _ = self.observe(frame)
+        if self.opt.velocity:
+            self.particles = self.body.dofs.validate(self.particles + self.opt.velocity * self.velocity)
         res = self.sampler.step(self.particles, self.weights, self.rng)
         self.particles = res.particles
         x = res.estimate if self.opt.estimate == "mean" else res.best
         x = self.body.dofs.validate(x)[0]
+        self.velocity, self.last = x - self.last, x
         e_s, c_a = self.scores(x[None])
         self.frames_done += 1
         k = self.opt.appearance_refine

@@ -1,0 +1,295 @@
+"""``gltrack bench depth``: accuracy and speed of the depth trackers (Ganapathi et al. 2010).
+
+Datasets are synthesised with ``gltrack synth --rig depth`` (SR4000-like 176x144 ToF camera,
+default noise, 30 frames/s) from the CMU clips in ``../shared/mocap`` (:data:`CLIPS`: a walk
+towards the camera, one-legged hops, salsa; source ranges avoid the clips' calibration jumps and
+the salsa's mocap glitches near source frames 300-365). Each clip is tracked from the ground-truth
+first pose by
+
+* ``hc`` (model-based hill climbing), ``ep`` (evidence propagation without climbing the
+  prediction) and ``hc+ep`` (the paper's full system),
+* with the pixel-wise and the smoothed likelihood (``--quick``: smoothed only),
+
+with the trackers' default options (:class:`gltrack.track.ep.EvidenceOptions`), and scored by
+:func:`gltrack.eval.metrics.evaluate`: marker mean / max error (metres), fractions of markers
+tracked (<= 0.1 m) and failed (>= 0.3 m), mean joint error (mm), frames per second and candidate
+evaluations per frame.
+
+Recovery test (smoothed likelihood, ``hc`` and ``hc+ep``): at frame :data:`PERTURB_AT` the
+tracker's state of one arm is shifted by 0.5 rad on every DOF (option ``perturb_frame``); the
+figure is the number of frames until the mean error of that arm's markers is back under 0.1 m
+(0 = recovered within the perturbed frame), or None with "not recovered within N frames".
+
+``targets`` evaluates the issue's accuracy targets on the smoothed likelihood: hc+ep mean marker
+error <= 0.05 m and <= 1 % markers failed on every clip; hc+ep no worse than hc on every clip
+(within 2 mm) and better on the hardest (largest hc error).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import machine_name
+
+log = logging.getLogger(__name__)
+
+#: clip -> (BVH file in shared/mocap, first source frame at 120 frames/s)
+CLIPS = {
+    "walk": ("cmu_02_01_walk.bvh", 8),
+    "hop": ("cmu_131_03_start_hop_stop_max_metres.bvh", 760),
+    "salsa": ("cmu_60_10_salsa_daz_metres.bvh", 400),
+}
+SOURCE_FPS = 120
+FPS = 30.0
+METHODS = ("hc", "ep", "hc+ep")
+LIKELIHOODS = {"pixel": False, "smoothed": True}
+PERTURB_AT = 10
+PERTURB_PART = "r_arm"
+PERTURB_RAD = 0.5
+#: markers of each limb (the clavicle carries the shoulder marker, so it moves with the arm)
+LIMB_MARKERS = {
+    "l_arm": ("l_shoulder", "l_elbow", "l_wrist", "l_hand"),
+    "r_arm": ("r_shoulder", "r_elbow", "r_wrist", "r_hand"),
+    "l_leg": ("l_knee", "l_ankle", "l_heel", "l_toe"),
+    "r_leg": ("r_knee", "r_ankle", "r_heel", "r_toe"),
+}
+TARGET_MEAN_M = 0.05
+TARGET_FAILED = 0.01
+NO_WORSE_TOL_M = 0.002
+
+
+def shared_dir() -> Path | None:
+    """``GLTRACK_SHARED`` or ``../shared`` next to the repository, or None."""
+    env = os.environ.get("GLTRACK_SHARED")
+    repo = Path(__file__).resolve().parents[2]
+    for cand in ([Path(env)] if env else []) + [repo.parent / "shared"]:
+        if cand.is_dir():
+            return cand
+    return None
+
+
+def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) -> Path:
+    """Synthesise ``frames`` depth frames at 30 frames/s from source frame ``first`` (subprocess:
+    the simulator needs its own GL platform)."""
+    last = first + int(round(frames * SOURCE_FPS / FPS))
+    cmd = [sys.executable, "-m", "gltrack", "-q", "synth", "--motion", str(bvh), "--rig", "depth",
+           "--out", str(out), "--frames", f"{first}:{last}", "--fps", str(FPS), "--seed", str(seed),
+           "--overwrite"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"gltrack synth failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
+    return out
+
+
+def _marker_index(names, wanted):
+    names = list(names)
+    return [names.index(n) for n in wanted if n in names]
+
+
+def recovery_frames(errors, start: int, threshold: float = 0.1):
+    """Frames from ``start`` until ``errors`` (per frame, metres) is back under ``threshold``.
+
+    Parameters
+    ----------
+    errors : (N,) float, metres, indexed by tracked frame (0 = first tracked frame)
+    start : int, index of the perturbed frame
+
+    Returns
+    -------
+    int or None (never back under the threshold).
+    """
+    e = np.asarray(errors, dtype=np.float64)[start:]
+    ok = np.nonzero(e < threshold)[0]
+    return int(ok[0]) if len(ok) else None
+
+
+def _run(ds, method, opts, out, ctx):
+    from gltrack.data.dataset import Dataset
+    from gltrack.data.results import load_results
+    from gltrack.eval.metrics import evaluate
+    from gltrack.track.runner import track
+
+    t0 = time.perf_counter()
+    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx)
+    wall = time.perf_counter() - t0
+    res = load_results(out)
+    gt = Dataset.open(ds).groundtruth()
+    m = evaluate(res, gt)
+    frames = int(timing["frames"])
+    row = {k: (None if m.get(k) is None else float(m[k])) for k in (
+        "marker_mean_m", "marker_max_m", "frac_markers_tracked", "frac_markers_failed",
+        "mean_joint_error_mm")}
+    row.update(fps=float(timing.get("fps") or frames / max(wall, 1e-9)),
+               evaluations_per_frame=float(timing["evaluations"]) / max(frames, 1), frames=frames)
+    return row, res, gt
+
+
+def limb_error(res, gt, part: str) -> np.ndarray:
+    """(N,) mean error of limb ``part``'s markers per tracked frame, metres."""
+    idx = _marker_index(res["marker_names"], LIMB_MARKERS[part])
+    gidx = _marker_index(gt.get("marker_names", res["marker_names"]), LIMB_MARKERS[part])
+    f = np.asarray(res["frame"], dtype=int)
+    return np.linalg.norm(res["markers"][:, idx] - gt["markers"][f][:, gidx], axis=2).mean(1)
+
+
+def _targets(clips: dict) -> dict:
+    """The issue's accuracy targets, on the smoothed likelihood."""
+    rows = {c: v["runs"] for c, v in clips.items() if "runs" in v}
+    out = {"likelihood": "smoothed", "clips": sorted(rows)}
+    if not rows:
+        out["skipped"] = "no clip was run"
+        return out
+
+    def get(c, m, k):
+        r = rows[c].get(f"{m}/smoothed")
+        return None if r is None else r[k]
+
+    per = {}
+    for c in rows:
+        hcep, hc = get(c, "hc+ep", "marker_mean_m"), get(c, "hc", "marker_mean_m")
+        per[c] = {"hc+ep_mean_m": hcep, "hc_mean_m": hc,
+                  "hc+ep_failed": get(c, "hc+ep", "frac_markers_failed"),
+                  "mean_ok": hcep is not None and hcep <= TARGET_MEAN_M,
+                  "failed_ok": get(c, "hc+ep", "frac_markers_failed") is not None
+                  and get(c, "hc+ep", "frac_markers_failed") <= TARGET_FAILED,
+                  "no_worse_than_hc": hcep is not None and hc is not None
+                  and hcep <= hc + NO_WORSE_TOL_M}
+    hardest = max(rows, key=lambda c: get(c, "hc", "marker_mean_m") or 0.0)
+    out["per_clip"] = per
+    out["hardest_clip"] = hardest
+    out["better_on_hardest"] = bool(get(hardest, "hc+ep", "marker_mean_m") is not None
+                                    and get(hardest, "hc+ep", "marker_mean_m")
+                                    < get(hardest, "hc", "marker_mean_m"))
+    out["all_met"] = bool(all(p["mean_ok"] and p["failed_ok"] and p["no_worse_than_hc"]
+                              for p in per.values()) and out["better_on_hardest"])
+    return out
+
+
+def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
+    """Run the depth-tracker bench.
+
+    Parameters
+    ----------
+    quick : bool
+        30 frames per clip and the smoothed likelihood only (about 2 minutes); otherwise 60
+        frames and both likelihoods (about 10 minutes on a 2-core software-GL machine).
+    clips : sequence of str, optional, subset of :data:`CLIPS` (default: all)
+    out_dir : path, optional
+        Keep datasets and results folders here; default: a temporary folder, deleted.
+
+    Returns
+    -------
+    dict (JSON-able): ``machine``, ``renderer``, ``frames``, ``options`` (tracker defaults),
+    ``clips``: clip -> {``source_frames``, ``runs``: "method/likelihood" -> figures,
+    ``recovery``: method -> {``frames`` (int or None), ``text``, ``arm_error_m`` per frame}} or
+    {``skipped``: reason}; ``targets`` (see module docstring); ``seconds``.
+    """
+    from dataclasses import asdict
+
+    from gltrack.gl.context import create_context
+    from gltrack.track.ep import EvidenceOptions
+
+    names = list(CLIPS) if clips is None else list(clips)
+    unknown = [c for c in names if c not in CLIPS]
+    if unknown:
+        raise ValueError(f"unknown clip(s) {unknown}; choose from {list(CLIPS)}")
+    n = 30 if quick else 60
+    liks = {"smoothed": True} if quick else dict(LIKELIHOODS)
+    t_start = time.perf_counter()
+    result = {"machine": machine_name(), "frames": n, "fps_data": FPS, "quick": bool(quick),
+              "options": asdict(EvidenceOptions()), "clips": {}}
+    shared = shared_dir()
+    if shared is None:
+        reason = "../shared (or GLTRACK_SHARED) is absent: no mocap clips to synthesise"
+        result["clips"] = {c: {"skipped": reason} for c in names}
+        result["targets"] = _targets({})
+        result["renderer"] = None
+        result["seconds"] = 0.0
+        return result
+    work = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix="gltrack_bench_depth_"))
+    work.mkdir(parents=True, exist_ok=True)
+    ctx = create_context()
+    result["renderer"] = str(ctx.info.get("GL_RENDERER"))
+    try:
+        for clip in names:
+            bvh_name, first = CLIPS[clip]
+            bvh = shared / "mocap" / bvh_name
+            if not bvh.is_file():
+                result["clips"][clip] = {"skipped": f"{bvh} not found"}
+                continue
+            ds = synth_depth(bvh, work / clip / "data", first, n)
+            entry = {"source_frames": [first, first + int(round(n * SOURCE_FPS / FPS))],
+                     "runs": {}, "recovery": {}}
+            unperturbed = {}
+            for lik, smooth in liks.items():
+                for method in METHODS:
+                    out = work / clip / f"{method}_{lik}"
+                    row, res, gt = _run(ds, method, {"smooth": smooth}, out, ctx)
+                    entry["runs"][f"{method}/{lik}"] = row
+                    if smooth:
+                        unperturbed[method] = limb_error(res, gt, PERTURB_PART)
+                    log.info("%s %s/%s: %s", clip, method, lik, row)
+            for method in ("hc", "hc+ep"):
+                opts = {"perturb_frame": PERTURB_AT, "perturb_part": PERTURB_PART,
+                        "perturb_rad": PERTURB_RAD}
+                row, res, gt = _run(ds, method, opts, work / clip / f"{method}_recovery", ctx)
+                err = limb_error(res, gt, PERTURB_PART)
+                start = PERTURB_AT - int(res["frame"][0])
+                k = recovery_frames(err, start)
+                left = len(err) - start
+                entry["recovery"][method] = {
+                    "frames": k, "perturbed_frame": PERTURB_AT, "part": PERTURB_PART,
+                    "radians": PERTURB_RAD,
+                    "text": f"{k} frames" if k is not None else f"not recovered within {left} frames",
+                    "arm_error_m": [round(float(e), 4) for e in err],
+                    "unperturbed_arm_error_m": [round(float(e), 4) for e in unperturbed[method]],
+                    "arm_error_after_m": float(err[start:].mean()),
+                    "unperturbed_arm_error_after_m": float(unperturbed[method][start:].mean()),
+                    "marker_mean_m": row["marker_mean_m"]}
+            result["clips"][clip] = entry
+    finally:
+        ctx.release()
+        if not out_dir:
+            shutil.rmtree(work, ignore_errors=True)
+    result["targets"] = _targets(result["clips"])
+    result["seconds"] = round(time.perf_counter() - t_start, 1)
+    return result
+
+
+def format_table(res: dict) -> str:
+    """A plain-text table of :func:`bench_depth`'s figures."""
+    lines = [f"machine:  {res['machine']}", f"renderer: {res.get('renderer')}",
+             f"frames per clip: {res['frames']} at {res['fps_data']:g} frames/s", "",
+             f"{'clip':6s} {'method':6s} {'lik':8s} {'mean m':>7s} {'max m':>7s} {'trk':>6s} "
+             f"{'fail':>6s} {'joint mm':>8s} {'fps':>6s} {'eval/f':>7s}"]
+    for clip, e in res["clips"].items():
+        if "skipped" in e:
+            lines.append(f"{clip:6s} skipped: {e['skipped']}")
+            continue
+        for key, r in e["runs"].items():
+            m, lik = key.split("/")
+            lines.append(f"{clip:6s} {m:6s} {lik:8s} {r['marker_mean_m']:7.3f} {r['marker_max_m']:7.3f} "
+                         f"{r['frac_markers_tracked']:6.3f} {r['frac_markers_failed']:6.3f} "
+                         f"{r['mean_joint_error_mm']:8.1f} {r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}")
+        for m, r in e["recovery"].items():
+            lines.append(f"{clip:6s} {m:6s} recovery after {r['radians']} rad on {r['part']} at "
+                         f"frame {r['perturbed_frame']}: {r['text']} (arm error after it "
+                         f"{r['arm_error_after_m']:.3f} m, unperturbed "
+                         f"{r['unperturbed_arm_error_after_m']:.3f} m)")
+    t = res.get("targets", {})
+    if "all_met" in t:
+        lines += ["", f"targets (smoothed): all met = {t['all_met']}; hardest clip {t['hardest_clip']}, "
+                  f"hc+ep better there = {t['better_on_hardest']}"]
+        for c, p in t["per_clip"].items():
+            lines.append(f"  {c}: hc+ep {p['hc+ep_mean_m']:.3f} m (<= {TARGET_MEAN_M}: {p['mean_ok']}), "
+                         f"failed {p['hc+ep_failed']:.3f} (<= {TARGET_FAILED}: {p['failed_ok']}), "
+                         f"hc {p['hc_mean_m']:.3f} m (no worse: {p['no_worse_than_hc']})")
+    return "\n".join(lines)

@@ -1,0 +1,167 @@
+"""Depth trackers: hc+ep through the CLI, recovery after a perturbed arm, option checks, and the
+crop / resampling / background-margin helpers of the depth tracker."""
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gltrack.cli import main
+from gltrack.data.dataset import Dataset
+from gltrack.data.results import load_results
+from gltrack.eval.metrics import evaluate
+
+sys.path.insert(0, str(Path(__file__).parent))
+from trackdata import make_depth_dataset  # noqa: E402
+
+N = 14
+PERTURB = 3
+ARM = ("l_shoulder", "l_elbow", "l_wrist", "l_hand")
+
+
+@pytest.fixture(scope="module")
+def ds(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ep") / "ds"
+    make_depth_dataset(out, n=N)
+    return out
+
+
+def _arm_error(res_dir, ds_dir):
+    res, gt = load_results(res_dir), Dataset.open(ds_dir).groundtruth()
+    ri = [list(res["marker_names"]).index(n) for n in ARM]
+    gi = [list(gt.get("marker_names", res["marker_names"])).index(n) for n in ARM]
+    f = np.asarray(res["frame"], int)
+    return np.linalg.norm(res["markers"][:, ri] - gt["markers"][f][:, gi], axis=2).mean(1)
+
+
+def _track(ds, method, out, tmp_path, **opts):
+    cfg = tmp_path / f"{method.replace('+', '_')}.toml"
+    cfg.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in opts.items()))
+    assert main(["-q", "track", str(ds), "--method", method, "--out", str(out),
+                 "--config", str(cfg)]) == 0
+    return out
+
+
+def test_hc_ep_recovers_a_perturbed_arm_better_than_hc(ds, tmp_path):
+    opts = dict(perturb_frame=PERTURB, perturb_part="l_arm", perturb_rad=0.5)
+    hc = _track(ds, "hc", tmp_path / "hc", tmp_path, **opts)
+    hcep = _track(ds, "hc+ep", tmp_path / "hcep", tmp_path, **opts)
+    e_hc, e_ep = _arm_error(hc, ds), _arm_error(hcep, ds)
+    # before the perturbation both track the arm
+    assert e_hc[:PERTURB].max() < 0.1 and e_ep[:PERTURB].max() < 0.1
+    # the perturbation really threw the arm off for plain hill climbing
+    assert e_hc[PERTURB:].max() > 0.1
+    after = slice(PERTURB, N)
+    assert e_ep[after].mean() < e_hc[after].mean()
+    assert e_ep[-1] < 0.1, e_ep
+    m = evaluate(load_results(hcep), Dataset.open(ds).groundtruth())
+    assert m["frac_markers_failed"] < 0.05
+    timing = json.loads((hcep / "timing.json").read_text())
+    assert timing["frames"] == N
+    # a run without perturbation differs: the option did something
+    plain = _track(ds, "hc+ep", tmp_path / "plain", tmp_path)
+    assert _arm_error(plain, ds)[PERTURB] < e_ep[PERTURB] or e_ep[PERTURB] > 0.05
+
+
+@pytest.mark.parametrize("line, word", [
+    ("perturb_part = \"tail\"\n", "perturb_part"),
+    ("tile = 100\n", "tile"),
+    ("velocity_damping = 1.5\n", "velocity_damping"),
+    ("min_confidence = 0.5\nno_such_key = 1\n", "no_such_key"),
+    ("crop = 3\n", "crop"),
+])
+def test_options_are_validated(ds, tmp_path, capsys, line, word):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(line)
+    rc = main(["track", str(ds), "--method", "hc+ep", "--out", str(tmp_path / "x"), "--config", str(cfg)])
+    assert rc == 1
+    assert word in capsys.readouterr().err
+
+
+def _cam():
+    from gltrack.camera import depth_camera_sr4000
+
+    return depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
+
+
+def test_resample_to_the_same_camera_is_identity_and_crop_maps_points(rng):
+    from gltrack.track.depth import crop_camera, resample_depth
+
+    cam = _cam()
+    z = rng.uniform(1, 5, size=(cam.height, cam.width)).astype(np.float32)
+    assert np.array_equal(resample_depth(z, cam, cam), z)
+    pts = rng.normal([0, 1.0, 0], [0.1, 0.2, 0.1], size=(30, 3))
+    crop, zc = crop_camera(cam, pts, 64, 0.2)
+    assert crop.width == crop.height == 64
+    P = pts @ cam.R.T + cam.t
+    assert zc == pytest.approx(np.median(P[:, 2]))
+    # every point lands inside the crop, at least ~margin away from the border
+    uv = crop.project(pts, distort=False)
+    assert uv.min() > 0 and uv.max() < 63
+    # a marked 5x5 source patch shows up in the crop where the crop projects its centre
+    src_uv = np.rint(cam.project(pts[:1], distort=False)[0]).astype(int)
+    z2 = np.zeros_like(z)
+    z2[src_uv[1] - 2:src_uv[1] + 3, src_uv[0] - 2:src_uv[0] + 3] = 2.5
+    t = resample_depth(z2, cam, crop)
+    tuv = np.rint(crop.project(pts[:1], distort=False)[0]).astype(int)
+    assert t[tuv[1], tuv[0]] == 2.5
+    assert 0 < (t > 0).sum() <= 25
+    # a wider margin gives a wider window (smaller focal length)
+    wide, _ = crop_camera(cam, pts, 64, 0.4)
+    assert wide.fx < crop.fx
+
+
+def test_depth_tolerance_grows_with_depth():
+    from gltrack.observe.depth import depth_tolerance, remove_background
+
+    bg = np.array([[2.0, 6.0]], np.float32)
+    tol = depth_tolerance(bg)
+    assert tol[0, 0] == pytest.approx(0.08 + 3 * np.sqrt(2) * 0.01)
+    assert tol[0, 1] == pytest.approx(0.08 + 3 * np.sqrt(2) * 0.01 * 9)
+    # 20 cm in front of a far wall is sensor noise, in front of a near wall it is an object
+    z = bg - 0.2
+    fg = remove_background(z, bg, tolerance=tol, min_blob=1)
+    assert fg[0, 0] > 0 and fg[0, 1] == 0
+    assert remove_background(z, bg, tolerance=0.08, min_blob=1)[0, 1] > 0
+
+
+def test_perturb_moves_only_the_limb(ds, ctx):
+    from gltrack.body.model import body_from_meta
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    d = Dataset.open(ds)
+    body = body_from_meta(d.body, None)
+    tr = HillClimbDepthTracker(d, body, ctx, DepthOptions())
+    try:
+        x0 = d.groundtruth()["params"][0]
+        tr.start(0, x0)
+        tr.perturb("r_arm", 0.5)
+        moved = np.nonzero(np.abs(tr.x - body.dofs.validate(x0)[0]) > 1e-9)[0]
+        names = [body.dofs.names[i] for i in moved]
+        assert names and all(n.startswith(("r_clavicle", "r_shoulder", "r_elbow", "r_wrist"))
+                             for n in names)
+        with pytest.raises(ValueError, match="perturb_part"):
+            tr.perturb("tail", 0.5)
+    finally:
+        tr.close()
+
+
+def test_bench_recovery_count_and_targets():
+    from gltrack.bench.depth import _targets, recovery_frames
+
+    assert recovery_frames([0.05, 0.3, 0.2, 0.08, 0.3], 1) == 2
+    assert recovery_frames([0.05, 0.3, 0.2], 1) is None
+    assert recovery_frames([0.05, 0.09], 1) == 0
+
+    def run(mean, failed):
+        return {"marker_mean_m": mean, "frac_markers_failed": failed}
+
+    clips = {"a": {"runs": {"hc/smoothed": run(0.04, 0.0), "hc+ep/smoothed": run(0.03, 0.0)}},
+             "b": {"runs": {"hc/smoothed": run(0.09, 0.02), "hc+ep/smoothed": run(0.05, 0.0)}},
+             "c": {"skipped": "absent"}}
+    t = _targets(clips)
+    assert t["hardest_clip"] == "b" and t["better_on_hardest"] and t["all_met"]
+    clips["a"]["runs"]["hc+ep/smoothed"] = run(0.045, 0.0)  # worse than hc by 5 mm
+    t = _targets(clips)
+    assert not t["per_clip"]["a"]["no_worse_than_hc"] and not t["all_met"]
