@@ -147,7 +147,7 @@ def test_observation_resampled_to_tile(ctx, body, rng):
         got = eng.score(S)[:, 0, 0]
     import cv2
 
-    small = cv2.resize(obs[0].astype(np.float32), (TILE, TILE), interpolation=cv2.INTER_NEAREST)
+    small = cv2.resize(obs[0].astype(np.float32), (TILE, TILE), interpolation=cv2.INTER_NEAREST_EXACT)
     st = cam.scaled(TILE, TILE)
     rz, _ = ref_render(mesh, S, st)
     want = np.array([ref.depth_cost(rz[i], small) for i in range(len(S))])
@@ -267,3 +267,19 @@ def test_memory_flat_over_10000_batches(ctx, body):
     for _ in range(50):  # engines come and go without leaking GL objects
         ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=16).release()
     assert grown < 20, f"memory grew by {grown:.1f} MB over 9000 batches"
+
+
+def test_set_camera_replaces_view_and_needs_new_observation(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    a, b = cams(2)
+    S = kin.skinning_matrices(random_poses(body, rng, 3))
+    with ScoringEngine(ctx, mesh, skel.n_joints, [a], tile=TILE) as eng:
+        eng.set_depth(0, np.zeros((TILE, TILE)))
+        za, _ = eng.render_tiles(S)
+        eng.set_camera(0, b)
+        with pytest.raises(ValueError, match="no observation"):
+            eng.score(S)
+        zb, _ = eng.render_tiles(S)
+    rz, _ = ref_render(mesh, S, b)
+    assert not np.array_equal(za > 0, zb > 0)
+    assert np.abs((zb > 0).sum() - (rz > 0).sum()) <= 0.02 * (rz > 0).sum() + 2

@@ -327,8 +327,8 @@ def sample_colours(mesh, skinning, cameras, images, masks, *, engine=None,
             T = engine.tile
             _, ids = engine.render_tiles(S[None].astype(np.float32), c)
             ids = ids[0]
-            img = cv2.resize(img, (T, T), interpolation=cv2.INTER_NEAREST)
-            m = cv2.resize(m.astype(np.uint8), (T, T), interpolation=cv2.INTER_NEAREST).astype(bool)
+            img = cv2.resize(img, (T, T), interpolation=cv2.INTER_NEAREST_EXACT)
+            m = cv2.resize(m.astype(np.uint8), (T, T), interpolation=cv2.INTER_NEAREST_EXACT).astype(bool)
         facing = facing_triangles(mesh, S, cam.center, min_cos)
         sel = (ids >= 0) & m
         sel[sel] = facing[ids[sel]]

@@ -260,7 +260,20 @@ class ScoringEngine:
                              f" the camera is {w}x{h}")
 
     def _to_tile(self, img):
-        return cv2.resize(img, (self.tile, self.tile), interpolation=cv2.INTER_NEAREST)
+        # INTER_NEAREST_EXACT samples the source pixel whose centre is nearest to each tile
+        # pixel's centre (plain INTER_NEAREST is off by up to most of a pixel when shrinking).
+        return cv2.resize(img, (self.tile, self.tile), interpolation=cv2.INTER_NEAREST_EXACT)
+
+    def set_camera(self, cam: int, camera):
+        """Replace camera ``cam`` (e.g. a crop window that follows the subject).
+
+        The camera's observations are dropped with it: upload new ones before scoring.
+        """
+        v = self._check_view(cam)
+        for tex in (v.obs_z, v.obs_mask, v.obs_bits, v.tri_bits):
+            if tex is not None:
+                tex.release()
+        self.views[cam] = _View(camera, self.tile)
 
     def _upload(self, old, data, components, dtype):
         if old is not None:

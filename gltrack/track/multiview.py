@@ -319,7 +319,7 @@ class MultiviewTracker(Tracker):
         T = self.engine.tile
         self.area = max(1.0, float(sum(
             np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
-                                        interpolation=cv2.INTER_NEAREST)) for f, b in zip(fgs, blocks))))
+                                        interpolation=cv2.INTER_NEAREST_EXACT)) for f, b in zip(fgs, blocks))))
         return images, fgs, blocks
 
     # -- weights --------------------------------------------------------------------------
