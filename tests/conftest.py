@@ -28,11 +28,10 @@ def shared():
 @pytest.fixture(scope="session")
 def gl_ctx():
     """A real OpenGL context for the whole session (never mocked)."""
-    from gltrack.gl.context import create_context
+    from gltrack.gl.context import shared_context
 
-    ctx = create_context()
-    yield ctx
-    ctx.release()
+    # The same process-wide context the library's runner uses: one context per process.
+    return shared_context()
 
 
 @pytest.fixture

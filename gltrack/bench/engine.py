@@ -111,7 +111,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     from gltrack.body.kinematics import Kinematics
     from gltrack.body.mesh import make_body_mesh
     from gltrack.body.skeleton import default_skeleton
-    from gltrack.gl.context import capabilities, create_context
+    from gltrack.gl.context import capabilities, shared_context
     from gltrack.render import reference as ref
     from gltrack.render.baseline import run_baseline_in_subprocess
     from gltrack.render.engine import ScoringEngine
@@ -136,7 +136,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     fk_p = poses(10_000)
     fk_s = _median_time(lambda: kin.skinning_matrices(fk_p), repeats)
 
-    ctx = create_context()
+    ctx = shared_context()
     caps = capabilities(ctx)
     result = {"machine": machine_name(), "renderer": caps.renderer, "gl_version": caps.version,
               "triangles": int(mesh.n_faces), "candidates": n, "quick": bool(quick),
@@ -205,5 +205,4 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
             entry["speedup"] = rate / base
         log.info("bench %s: %s", name, entry)
         result["modes"][name] = entry
-    ctx.release()
     return result

@@ -157,3 +157,22 @@ def park_framebuffer(ctx: moderngl.Context):
         ctx._gltrack_idle_fbo = idle
     idle.use()
     return idle
+
+
+_SHARED: dict = {}
+
+
+def shared_context(backend: str = "auto", device: int | None = None) -> moderngl.Context:
+    """The process-wide context for ``(backend, device)``, created on first use.
+
+    Library code (the tracking runner, benchmarks) uses this rather than making and releasing
+    contexts of its own: several live EGL contexts in one thread fight over which one is current,
+    and objects of a released context can be freed while another one is current. Do not release
+    it; it lives as long as the process.
+    """
+    key = (os.environ.get("GLTRACK_GL_BACKEND", backend).lower(),
+           os.environ.get("GLTRACK_EGL_DEVICE", device))
+    ctx = _SHARED.get(key)
+    if ctx is None:
+        ctx = _SHARED[key] = create_context(backend, device)
+    return ctx

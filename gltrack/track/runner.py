@@ -101,7 +101,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     """
     from tqdm import tqdm
 
-    from gltrack.gl.context import create_context
+    from gltrack.gl.context import shared_context
     from gltrack.motion.export import write_params_bvh
 
     methods = available_methods()
@@ -116,8 +116,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
         raise ValueError(f"frames {start}:{stop} outside the dataset's 0:{ds.frames}")
-    own_ctx = ctx is None
-    ctx = ctx or create_context()
+    ctx = ctx or shared_context()
     rng = np.random.default_rng(seed)
     tracker = _load(tracker_spec)(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
@@ -151,8 +150,6 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     finally:
         tracker.close()
         writer.close()
-        if own_ctx:
-            ctx.release()
     timing = dict(timing)
     timing["out"] = str(out)
     return timing
