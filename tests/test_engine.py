@@ -283,3 +283,29 @@ def test_set_camera_replaces_view_and_needs_new_observation(ctx, body, rng):
     rz, _ = ref_render(mesh, S, b)
     assert not np.array_equal(za > 0, zb > 0)
     assert np.abs((zb > 0).sum() - (rz > 0).sum()) <= 0.02 * (rz > 0).sum() + 2
+
+
+def test_info_reports_backend_and_reduction():
+    import json
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "gltrack", "info", "--json"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    info = json.loads(res.stdout)
+    assert info["backend"] in ("egl", "osmesa") and info["version_code"] >= 330
+    assert info["reduction"] in ("mipmap", "compute")
+    assert info["max_texture_size"] >= 2048
+
+
+def test_backend_choice_is_validated(monkeypatch):
+    from gltrack.gl.context import GLContextError, create_context
+
+    monkeypatch.setenv("GLTRACK_GL_BACKEND", "x11")
+    with pytest.raises(GLContextError, match="unknown GL backend"):
+        create_context()
+    monkeypatch.setenv("GLTRACK_GL_BACKEND", "egl")
+    monkeypatch.setenv("GLTRACK_EGL_DEVICE", "zero")
+    with pytest.raises(GLContextError, match="GLTRACK_EGL_DEVICE"):
+        create_context()

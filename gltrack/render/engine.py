@@ -540,9 +540,20 @@ class ScoringEngine:
         self.release()
 
 
-def choose_reduction(ctx: moderngl.Context) -> str:
-    """Which reduction ``reduction="auto"`` will most likely pick here ("compute" needs GL 4.3).
+def choose_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str:
+    """The reduction ``reduction="auto"`` picks here, found the way the engine finds it.
 
-    The engine decides for real by timing both on its first batch; this reports the capability.
+    Times both reductions on ``n`` candidates of the default body (depth cost, one camera at
+    ``tile``); "mipmap" without GL 4.3. Used by ``gltrack info``.
     """
-    return "compute or mipmap (timed on the first batch)" if ctx.version_code >= 430 else "mipmap"
+    if ctx.version_code < 430:
+        return "mipmap"
+    from gltrack.body.model import BodyModel
+    from gltrack.camera import look_at_camera
+
+    body = BodyModel.build()
+    cam = look_at_camera("probe", (0.0, 1.0, 2.6), (0.0, 0.9, 0.0), tile, tile, 50.0, kind="depth")
+    with ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, [cam], tile=tile) as eng:
+        eng.set_depth(0, np.zeros((tile, tile)))
+        eng.score(body.skinning(np.repeat(body.dofs.zero(body.skeleton)[None], n, axis=0)))
+        return eng.reduction
