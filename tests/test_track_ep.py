@@ -70,6 +70,7 @@ def test_hc_ep_recovers_a_perturbed_arm_better_than_hc(ds, tmp_path):
     ("velocity_damping = 1.5\n", "velocity_damping"),
     ("min_confidence = 0.5\nno_such_key = 1\n", "no_such_key"),
     ("crop = 3\n", "crop"),
+    ("velocity_search = -1\n", "velocity_search"),
 ])
 def test_options_are_validated(ds, tmp_path, capsys, line, word):
     cfg = tmp_path / "c.toml"
@@ -165,3 +166,74 @@ def test_bench_recovery_count_and_targets():
     clips["a"]["runs"]["hc+ep/smoothed"] = run(0.045, 0.0)  # worse than hc by 5 mm
     t = _targets(clips)
     assert not t["per_clip"]["a"]["no_worse_than_hc"] and not t["all_met"]
+
+
+def _toy_ep(x_star, climb_rate):
+    """A 2-DOF 'body' whose hand sits at (x0, x1, 0); the cost is the squared distance to the
+    true pose ``x_star``; the 'hill climb' moves ``climb_rate`` of the way to ``x_star``."""
+    x_star = np.asarray(x_star, float)
+
+    def part(X):
+        X = np.atleast_2d(X)
+        return np.column_stack([X[:, 0], X[:, 1], np.zeros(len(X))])
+
+    def cost(X):
+        return np.sum((np.atleast_2d(X) - x_star) ** 2, axis=1)
+
+    def climb(x):
+        x = np.asarray(x, float) + climb_rate * (x_star - x)
+        return x, float(cost(x)[0]), 1
+
+    return {"hand": part}, {"hand": "hand"}, cost, climb
+
+
+def test_ep_margin_rejects_small_improvements():
+    from gltrack.evidence.associate import evidence_propagation
+
+    fns, classes, cost, climb = _toy_ep([1.0, 0.0], 0.0)
+    det = [(np.array([1.0, 0.0, 0.0]), "hand")]
+    kw = dict(sigma=np.array([1.0, 1.0]), meas_std=0.01, prune_radius=0.05)
+    # the true correspondence lowers the cost from 1 to ~0: accepted under a margin of 0.5 ...
+    ok = evidence_propagation(np.zeros(2), det, fns, classes, cost, climb, margin=0.5, **kw)
+    assert len(ok.accepted) == 1 and np.linalg.norm(ok.x - [1, 0]) < 0.05
+    # ... but not when the margin exceeds the improvement
+    no = evidence_propagation(np.zeros(2), det, fns, classes, cost, climb, margin=1.5, **kw)
+    assert not no.accepted and np.array_equal(no.x, np.zeros(2))
+
+
+def test_ep_control_refine_stops_a_wrong_detection_winning_by_its_extra_climb():
+    from gltrack.evidence.associate import evidence_propagation
+
+    # the truth is at (0, 0.3); a false "hand" detection at (1, 0, 0)
+    fns, classes, cost, climb = _toy_ep([0.0, 0.3], 0.9)
+    det = [(np.array([1.0, 0.0, 0.0]), "hand")]
+    kw = dict(sigma=np.array([1.0, 1.0]), meas_std=0.01, prune_radius=0.05)
+    x0 = np.zeros(2)
+    plain = evidence_propagation(x0, det, fns, classes, cost, climb, **kw)
+    assert len(plain.accepted) == 1  # the climb after the wrong IK beats the unclimbed pose
+    ctl = evidence_propagation(x0, det, fns, classes, cost, climb, control=True, **kw)
+    assert not ctl.accepted
+    assert np.linalg.norm(ctl.x - [0, 0.3]) < np.linalg.norm(plain.x - [0, 0.3])
+    assert ctl.cost < plain.cost
+
+
+def test_velocity_search_widens_the_grid_of_fast_dofs(ds, ctx):
+    from gltrack.body.model import body_from_meta
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    d = Dataset.open(ds)
+    body = body_from_meta(d.body, None)
+    x0 = d.groundtruth()["params"][0]
+    v = np.zeros(body.dofs.size)
+    v[4] = 0.3
+    steps = {}
+    for vs in (0.0, 1.0):
+        tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(velocity_search=vs))
+        try:
+            tr.start(0, x0, velocity=v)
+            steps[vs] = tr.search_steps()
+        finally:
+            tr.close()
+    assert np.allclose(steps[0.0], 2.0 * tr.sigma)
+    assert steps[1.0][4] == pytest.approx(steps[0.0][4] + 0.3)
+    assert np.array_equal(np.delete(steps[1.0], 4), np.delete(steps[0.0], 4))

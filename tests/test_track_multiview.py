@@ -162,3 +162,54 @@ def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
         assert not np.array_equal(tr.scores(X)[0], e_s)
     finally:
         tr.close()
+
+
+# ---------------------------------------------------------------- behaviour prior (--prior vlmm)
+@pytest.fixture(scope="module")
+def periodic(tmp_path_factory):
+    """A walk-like cycle in place (0.8 s period at 15 frames/s) and a behaviour model learnt from
+    other cycles of the same motion."""
+    from gltrack.bench.vlmm import periodic_motion
+    from gltrack.motion.behaviour import BehaviourModel
+
+    root = tmp_path_factory.mktemp("mv_prior")
+    body = BodyModel.build()
+    train = periodic_motion(body, 240, fps=FPS, period=0.8)
+    model = BehaviourModel.fit(train, FPS, np.random.default_rng(0), holdout=0.0,
+                               dof_names=body.dofs.names[6:])
+    model.save(root / "model.npz")
+    P = periodic_motion(body, 8, fps=FPS, phase=1.0, period=0.8)
+    P[:, 0] += 0.1
+    cams = ring_cameras(4, (128, 96), radius=3.0, target=(0.1, 0.9, 0.0))
+    render_dataset(root / "ds", body, P, cams, FPS, np.random.default_rng(4), mask_flip=0.002)
+    return root, body, P
+
+
+def test_hps_with_the_vlmm_prior_tracks(periodic, tmp_path):
+    root, body, P = periodic
+    static = static_error_mm(body, P)
+    assert static > 60.0
+    cfg = {"particles": 40, "prior": "vlmm", "prior_model": str(root / "model.npz")}
+    metrics, frames = _track(root / "ds", tmp_path, "hps", cfg)
+    err = _summary(metrics)
+    assert err < 0.8 * static, (err, static)
+    assert len(frames) == len(P)
+    assert all(f["evaluations"] == 40 * 15 + 1 for f in frames)
+
+
+def test_prior_option_is_validated(periodic, tmp_path, capsys):
+    from gltrack.track.multiview import MultiviewOptions
+
+    root, _, _ = periodic
+    with pytest.raises(ValueError, match="prior_model"):
+        MultiviewOptions(prior="vlmm")
+    with pytest.raises(ValueError, match="prior"):
+        MultiviewOptions(prior="kalman")
+    cfg = tmp_path / "p.toml"
+    for text, needle in (("prior = \"vlmm\"\n", "prior_model"),
+                         ("prior = \"vlmm\"\nprior_model = "
+                          f"{json.dumps(str(tmp_path / 'no.npz'))}\n", "no.npz")):
+        cfg.write_text(text)
+        rc = main(["-q", "track", str(root / "ds"), "--method", "hps", "--out", str(tmp_path / "o"),
+                   "--config", str(cfg), "--overwrite"])
+        assert rc == 1 and needle in capsys.readouterr().err, text

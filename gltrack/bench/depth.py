@@ -194,7 +194,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
     """
     from dataclasses import asdict
 
-    from gltrack.gl.context import create_context
+    from gltrack.gl.context import shared_context
     from gltrack.track.ep import EvidenceOptions
 
     names = list(CLIPS) if clips is None else list(clips)
@@ -216,7 +216,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
         return result
     work = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix="gltrack_bench_depth_"))
     work.mkdir(parents=True, exist_ok=True)
-    ctx = create_context()
+    ctx = shared_context()
     result["renderer"] = str(ctx.info.get("GL_RENDERER"))
     try:
         for clip in names:
@@ -256,7 +256,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
                     "marker_mean_m": row["marker_mean_m"]}
             result["clips"][clip] = entry
     finally:
-        ctx.release()
+        pass  # the shared context lives as long as the process
         if not out_dir:
             shutil.rmtree(work, ignore_errors=True)
     result["targets"] = _targets(result["clips"])

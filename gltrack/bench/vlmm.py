@@ -4,8 +4,11 @@ The paper reports that its VLMM prediction keeps accuracy with 25 times fewer pa
 evaluations than Condensation. This bench measures the same trade-off here:
 
 1. learn a behaviour model from the first part of a CMU clip (``../shared/mocap``);
-2. render a held-out later part of the clip as a synthetic multi-view sequence (foreground
-   masks of the skinned body from four cameras, CPU reference rasteriser);
+2. synthesise a held-out later part of the clip as a multi-view sequence with the sensor
+   simulator (:func:`gltrack.data.simulate.synthesize_in_subprocess`, four colour cameras,
+   cluttered room, MOG2 background-subtraction masks: ``data="simulate"``, the default), or,
+   where the simulator is unavailable (``data="render"``), as clean foreground masks of the
+   skinned body from four ring cameras (CPU reference rasteriser);
 3. track it with the same particle filter (GPU silhouette cost, SIR, best particle) using either
    plain Gaussian diffusion (per-DOF sigmas of :mod:`gltrack.body.dofs`) or the VLMM prior
    (:class:`gltrack.track.vlmm.VlmmPrior`), at several particle counts, from the true first pose;
@@ -162,7 +165,44 @@ def _evals_to_reach(runs, target):
     return min(ok) if ok else None
 
 
-def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
+def simulated_observation(params, skeleton, dofs, fps, out, seed: int = 0):
+    """Synthesise ``params`` (T, D) with the multi-view sensor simulator into ``out``.
+
+    Returns
+    -------
+    cameras : list of 4 undistorted colour Camera
+    masks : list over frames of lists over cameras of (H, W) bool background-subtraction masks
+        (undistorted with nearest neighbour)
+    params : (T, D) float64, the ground-truth parameters as the body was posed (clamped)
+    """
+    import cv2
+
+    from gltrack.data.dataset import Dataset
+    from gltrack.data.simulate import synthesize_in_subprocess
+
+    path = synthesize_in_subprocess(params, skeleton, dofs, fps, "multiview", str(out), seed=seed,
+                                    progress=False, overwrite=True, lod=0)
+    ds = Dataset.open(path)
+    try:
+        cams = list(ds.cameras)
+        masks = []
+        for f in range(ds.frames):
+            row = []
+            for i, c in enumerate(cams):
+                m = ds.mask(f, i)
+                if m is None:
+                    raise ValueError(f"{path}: camera {c.name} has no masks")
+                if np.any(c.dist):
+                    m = c.undistort_image(m.astype(np.uint8), cv2.INTER_NEAREST) > 0
+                row.append(np.asarray(m, bool))
+            masks.append(row)
+        gt = np.asarray(ds.groundtruth()["params"], dtype=np.float64)
+    finally:
+        ds.close()
+    return [c.undistorted() for c in cams], masks, gt
+
+
+def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, data: str = "simulate") -> dict:
     """Measure the VLMM prior against Gaussian diffusion (see module docstring).
 
     Parameters
@@ -170,6 +210,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
     quick : bool, shorter sequence, fewer particle counts and seeds (noisier)
     seed : int
     shared : path of the shared reference folder (default: GLTRACK_SHARED or ../shared)
+    data : "simulate" (sensor simulator, falls back to "render" when pyrender is missing) or
+        "render" (clean silhouettes from the CPU reference rasteriser)
 
     Returns
     -------
@@ -180,13 +222,15 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
     FileNotFoundError when the CMU clip is absent.
     """
     from gltrack.body.model import BodyModel
-    from gltrack.gl.context import create_context
+    from gltrack.gl.context import shared_context
     from gltrack.motion.behaviour import BehaviourModel
     from gltrack.motion.retarget import load_motion
     from gltrack.track.vlmm import VlmmPrior
 
     from . import machine_name
 
+    if data not in ("simulate", "render"):
+        raise ValueError(f"data must be 'simulate' or 'render', got {data!r}")
     root = Path(shared) if shared else _shared()
     clip = root / CLIP if root else None
     if clip is None or not clip.is_file():
@@ -203,13 +247,29 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
     model = BehaviourModel.fit(train, fps, rng, holdout=0.0, dof_names=dofs.names[6:])
     learn_s = time.perf_counter() - t0
     body = BodyModel.build(sk, "25", lod=0)
-    cams = ring_cameras(test[:, :3].mean(axis=0) + np.array([0.0, -0.1, 0.0]))
-    masks = render_masks(body, test, cams)
+    if data == "simulate":
+        import importlib.util
+
+        # Only look for pyrender: importing it here would pin PyOpenGL's platform in this
+        # process, which holds a moderngl context (the simulator runs in a spawn child).
+        if importlib.util.find_spec("pyrender") is None:
+            log.warning("sensor simulator unavailable (no pyrender): rendering clean masks")
+            data = "render"
+    if data == "simulate":
+        import tempfile
+
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix="gltrack-bench-vlmm-") as tmp:
+            cams, masks, test = simulated_observation(test, sk, dofs, fps, Path(tmp) / "ds", seed)
+        log.info("simulated %d frames in %.1f s", len(test), time.perf_counter() - t0)
+    else:
+        cams = ring_cameras(test[:, :3].mean(axis=0) + np.array([0.0, -0.1, 0.0]))
+        masks = render_masks(body, test, cams)
     gt = body.joints(test)
     counts_vlmm = [25, 50, 100] if quick else [25, 50, 100, 200]
     counts_diff = [50, 200, 800] if quick else [50, 100, 200, 400, 800, 1600]
     seeds = [seed] if quick else [seed, seed + 1]
-    ctx = create_context()
+    ctx = shared_context()
     eng = _Frames(ctx, body, cams, masks, fps, tile=TILE)
     runs = {"vlmm": [], "diffusion": []}
     try:
@@ -230,7 +290,6 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
                 log.info("%s N=%d: %.4f m", name, n, np.mean(errs))
     finally:
         eng.release()
-        ctx.release()
     best_vlmm = min(r["mean_error_m"] for r in runs["vlmm"])
     best_diff = min(r["mean_error_m"] for r in runs["diffusion"])
     targets = sorted({round(best_vlmm * 1.25, 4), round(max(best_vlmm, best_diff) * 1.1, 4)})
@@ -247,7 +306,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
             equal.append({"evaluations_per_frame": r["particles"],
                           "vlmm_error_m": r["mean_error_m"],
                           "diffusion_error_m": by_n[r["particles"]]})
-    return {"machine": machine_name(), "clip": CLIP, "fps": fps, "train_frames": int(cut),
+    return {"machine": machine_name(), "clip": CLIP, "data": data, "fps": fps,
+            "train_frames": int(cut),
             "test_frames": int(n_frames), "cameras": len(cams), "tile": TILE,
             "fixed_pose_error_m": float(np.linalg.norm(gt - gt[:1], axis=2).mean()), "seeds": seeds,
             "learn_seconds": learn_s, "model": model.report(), "runs": runs,

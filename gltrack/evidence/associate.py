@@ -79,7 +79,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                          hill_climb_fn, *, sigma, chains: dict | None = None,
                          meas_std: float = 0.03, prune_radius: float = 0.10,
                          cost_best: float | None = None, lower=None, upper=None,
-                         max_passes: int = 3, ik_kwargs: dict | None = None) -> EPResult:
+                         max_passes: int = 3, ik_kwargs: dict | None = None,
+                         margin: float = 0.0, control: bool = False) -> EPResult:
     """Greedy evidence propagation from classified part detections.
 
     Parameters
@@ -101,6 +102,12 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
     lower, upper : (D,) float, optional, pose limits for the IK
     max_passes : int, passes over the candidate correspondences at most
     ik_kwargs : dict, extra arguments for :func:`.ik.ut_ik`
+    margin : float, a proposal replaces ``x_best`` only when its cost is lower by more than this
+        (in ``cost_fn``'s units): a wrong correspondence whose refined pose is merely as good
+        as ``x_best`` must not win on noise
+    control : bool, before the first proposal, refine ``x_best`` itself with ``hill_climb_fn``
+        (kept when better). Every proposal gets that extra climb; without the control, the
+        extra climb alone, not the evidence, can make a wrong proposal beat ``x_best``.
 
     Returns
     -------
@@ -128,6 +135,12 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         cands = [(n, j) for n in names for j in np.nonzero(open_)[0]
                  if det.classes[j] == classes[n]]
         log.debug("EP pass: %d open detections, %d correspondences", int(open_.sum()), len(cands))
+        if control and cands:
+            control = False
+            x_c, c_c, e = hill_climb_fn(x_best)
+            evals += int(e)
+            if float(c_c) < cost_best:
+                x_best, cost_best = np.asarray(x_c, dtype=np.float64).ravel(), float(c_c)
         for name, j in cands:
             if used[j]:
                 continue
@@ -137,7 +150,7 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             x_new, c_new, e = hill_climb_fn(ik.x)
             evals += int(e)
             c_new = float(c_new)
-            if c_new < cost_best:
+            if c_new < cost_best - margin:
                 log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j,
                           det.classes[j], cost_best, c_new)
                 accepted.append({"part": name, "detection": int(j), "class": det.classes[j],

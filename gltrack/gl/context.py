@@ -125,8 +125,8 @@ def create_context(backend: str = "auto", device: int | None = None) -> moderngl
     raise GLContextError(
         "could not create an OpenGL >= 3.3 core context. Tried "
         + "; ".join(errors)
-        + f". Fix: install the Mesa EGL libraries (Debian/Ubuntu: apt-get install {SYSTEM_PACKAGES}),"
-        " or select a GPU with GLTRACK_EGL_DEVICE=N."
+        + f". Fix: install the Mesa EGL libraries (Debian/Ubuntu: apt-get install {SYSTEM_PACKAGES};"
+        " for OSMesa also libosmesa6), or select another GPU with GLTRACK_EGL_DEVICE=N."
     )
 
 

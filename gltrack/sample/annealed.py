@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import LayerInfo, SampleResult, evaluate, finish
+from .base import LayerInfo, SampleResult, evaluate, finish, predict
 from .diffusion import VARIANTS, StateSpace, diffuse, layer_noise
 from .resampling import get_resampler
 from .weights import Weights, annealing_exponent
@@ -48,7 +48,7 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
            layers: int = 5, alpha: float | None = 0.5, diffusion: str = "covariance",
            factor: float = 0.5, scale: float = 0.5, floor: float = 0.02,
            first_sigma=None, min_spread: float | None = None, resampler="systematic",
-           stage: str = "anneal") -> AnnealOutput:
+           stage: str = "anneal", first_scale: float = 1.0) -> AnnealOutput:
     """Run annealing layers that diffuse only ``dims``.
 
     Layer 0 diffuses with the motion-model noise (``first_sigma``, default ``space.sigma``);
@@ -68,6 +68,8 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
     diffusion : {"constant", "layer_variance", "covariance"}
     factor, scale, floor : see :func:`~gltrack.sample.diffusion.layer_noise`
     first_sigma : (K,) float, optional, layer-0 standard deviations
+    first_scale : float, multiplier of the default layer-0 noise ``space.sigma[dims]`` (ignored
+        with ``first_sigma``); 0 when a separate motion model already predicted the particles
     min_spread : float, optional
         Stop early once the weighted standard deviation of every dim in ``dims`` is below
         ``min_spread * space.sigma[dims]`` (Bandouch's variance threshold).
@@ -93,7 +95,7 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
     for m in range(int(layers)):
         if m == 0:
             x = diffuse(x, rng, space, dims=dims,
-                        sigma=base if first_sigma is None else first_sigma)
+                        sigma=first_scale * base if first_sigma is None else first_sigma)
         else:
             noise = layer_noise(diffusion, m, w, x[:, dims], base,
                                 factor=factor, scale=scale, floor=floor)
@@ -139,12 +141,18 @@ class AnnealedParticleFilter:
     def evaluations_per_step(self, n: int) -> int:
         return int(n) * self.layers
 
-    def step(self, particles, weight_fn, rng: np.random.Generator) -> SampleResult:
+    def step(self, particles, weight_fn, rng: np.random.Generator,
+             predict_fn=None, predict_scale: float = 0.0) -> SampleResult:
         """Advance one frame; ``particles`` (N, D) is the previous equally weighted set.
+
+        ``predict_fn(particles (N, D), rng) -> (N, D)``, optional, replaces the first layer's
+        Gaussian diffusion as the motion model
+        (see :func:`~gltrack.sample.base.predict`, also for ``predict_scale``).
 
         Returns a SampleResult with ``evaluations == N * layers``.
         """
-        out = anneal(particles, weight_fn, rng, self.space, layers=self.layers,
+        particles, scale = predict(particles, rng, self.space, predict_fn, predict_scale)
+        out = anneal(particles, weight_fn, rng, self.space, layers=self.layers, first_scale=scale,
                      alpha=self.alpha, diffusion=self.diffusion, factor=self.factor,
                      scale=self.scale, floor=self.floor, resampler=self.resampler, stage="apf")
         return finish(out.particles, out.weights, out.raw_lw, rng, out.particles.shape[0],

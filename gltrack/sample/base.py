@@ -68,6 +68,41 @@ class SampleResult:
     info: dict = field(default_factory=dict)
 
 
+def predict(particles, rng: np.random.Generator, space, predict_fn=None,
+            predict_scale: float = 0.0):
+    """Apply an optional motion model before a sampler's first weighting.
+
+    Parameters
+    ----------
+    particles : (N, D) float, the previous frame's equally weighted set
+    rng : numpy.random.Generator
+    space : StateSpace, validates the input and the prediction
+    predict_fn : callable ``(particles (N, D), rng) -> (N, D)`` or None
+        A learnt motion model (e.g. ``gltrack.track.vlmm.VlmmPrior.predict``). None keeps the
+        default motion model, the Gaussian diffusion of each stage's first layer.
+    predict_scale : float >= 0, the first layers' diffusion (in units of the motion-model
+        sigmas) that remains after a prediction: 0 trusts the prediction's own noise; a learnt
+        model's noise is often too narrow for the later annealing layers, which diffuse with
+        the spread of the set, to explore
+
+    Returns
+    -------
+    particles : (N, D) float64, predicted and clamped to the limits (validated copy without
+        ``predict_fn``)
+    first_scale : float, multiplier of the first layers' diffusion: 1 without ``predict_fn``,
+        ``predict_scale`` with it (the prediction already is the motion step)
+    """
+    x = space.check(particles)
+    if predict_fn is None:
+        return x, 1.0
+    if not predict_scale >= 0:
+        raise ValueError(f"predict_scale must be >= 0, got {predict_scale}")
+    y = space.check(predict_fn(x, rng), "predicted particles")
+    if y.shape != x.shape:
+        raise ValueError(f"predict_fn must return shape {x.shape}, got {y.shape}")
+    return space.clamp(y), float(predict_scale)
+
+
 def evaluate(weight_fn, x: np.ndarray) -> np.ndarray:
     """Call ``weight_fn`` on (N, D) particles and return validated (N,) log-weights."""
     w = np.asarray(weight_fn(x), dtype=np.float64)

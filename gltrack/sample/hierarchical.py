@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .annealed import anneal
-from .base import LayerInfo, SampleResult, evaluate, finish
+from .base import LayerInfo, SampleResult, evaluate, finish, predict
 from .diffusion import VARIANTS, StateSpace
 from .partitioned import _as_layers, _as_partitions, run_partitions
 from .partitions import default_partitions
@@ -133,26 +133,33 @@ class HierarchicalSampler:
         limbs = sum(c * sum(p.layers) for c, p in zip(self.shares(n), self.pipelines))
         return int(n) * self.torso_layers + limbs + (n if self.reweight == "evaluate" else 0)
 
-    def step(self, particles, weight_fn, rng: np.random.Generator) -> SampleResult:
+    def step(self, particles, weight_fn, rng: np.random.Generator,
+             predict_fn=None, predict_scale: float = 0.0) -> SampleResult:
         """Advance one frame; ``particles`` (N, D) is the previous equally weighted set.
+
+        ``predict_fn(particles (N, D), rng) -> (N, D)``, optional, moves the whole state once
+        before the torso annealing and replaces the first-layer diffusion of the torso and of
+        every limb partition
+        (see :func:`~gltrack.sample.base.predict`, also for ``predict_scale``).
 
         Returns a SampleResult whose ``info["pipeline_weight"]`` maps each pipeline name to
         the share of the final weight its particles won.
         """
-        x = self.space.check(particles)
+        x, scale = predict(particles, rng, self.space, predict_fn, predict_scale)
         n = x.shape[0]
         resample = get_resampler(self.resampler)
+        kw = dict(self.anneal_kw)
+        kw["first_scale"] = scale * kw.get("first_scale", 1.0)
         torso = anneal(x, weight_fn, rng, self.space, dims=self.torso, layers=self.torso_layers,
                        alpha=self.alpha, diffusion=self.diffusion, min_spread=self.min_spread,
-                       resampler=self.resampler, stage="torso", **self.anneal_kw)
+                       resampler=self.resampler, stage="torso", **kw)
         evals, infos = torso.evaluations, list(torso.layers)
         sets, raws, labels = [], [], []
         for k, (pipe, count) in enumerate(zip(self.pipelines, self.shares(n))):
             start = torso.particles[resample(torso.weights.W, rng, count)]
             out = run_partitions(start, weight_fn, rng, self.space, dict(pipe.partitions),
                                  pipe.layers, alpha=self.alpha, diffusion=self.diffusion,
-                                 resampler=self.resampler, stage=f"{pipe.name}/",
-                                 **self.anneal_kw)
+                                 resampler=self.resampler, stage=f"{pipe.name}/", **kw)
             evals += out.evaluations
             infos.extend(out.layers)
             sets.append(out.particles)

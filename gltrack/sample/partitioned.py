@@ -14,7 +14,7 @@ import logging
 import numpy as np
 
 from .annealed import AnnealOutput, anneal
-from .base import SampleResult, finish
+from .base import SampleResult, finish, predict
 from .diffusion import VARIANTS, StateSpace
 from .resampling import get_resampler
 
@@ -108,13 +108,21 @@ class PartitionedSampler:
     def evaluations_per_step(self, n: int) -> int:
         return int(n) * sum(self.layers)
 
-    def step(self, particles, weight_fn, rng: np.random.Generator) -> SampleResult:
+    def step(self, particles, weight_fn, rng: np.random.Generator,
+             predict_fn=None, predict_scale: float = 0.0) -> SampleResult:
         """Advance one frame; ``particles`` (N, D) is the previous equally weighted set.
+
+        ``predict_fn(particles (N, D), rng) -> (N, D)``, optional, moves the whole state once
+        before the first partition and replaces every partition's first-layer diffusion (see
+        :func:`~gltrack.sample.base.predict`).
 
         Returns a SampleResult with ``evaluations == N * sum(layers)``.
         """
+        particles, scale = predict(particles, rng, self.space, predict_fn, predict_scale)
+        kw = dict(self.anneal_kw)
+        kw["first_scale"] = scale * kw.get("first_scale", 1.0)
         out = run_partitions(particles, weight_fn, rng, self.space, dict(self.partitions),
                              self.layers, alpha=self.alpha, diffusion=self.diffusion,
-                             resampler=self.resampler, **self.anneal_kw)
+                             resampler=self.resampler, **kw)
         return finish(out.particles, out.weights, out.raw_lw, rng, out.particles.shape[0],
                       self.resampler, out.evaluations, out.layers)

@@ -72,6 +72,10 @@ class DepthOptions:
         depth (a pixel's footprint times its cost), so the prior balance does not change with
         tile size, crop or distance. 0 = raw pixel sums (tile pixels).
     refine_passes : extra hill-climbing sweeps restricted to the limbs, then one over the torso
+    velocity_search : the coarsest grid's half-width grows by this times the DOF's speed in the
+        previous frame (radians or metres per frame): a fast DOF's prediction is the least
+        certain (a spinning hop turns the pelvis by 5 inter-frame sigmas per frame, beyond a
+        fixed +-2 sigma grid, and the tracker falls behind the turn)
     perturb_frame, perturb_part, perturb_rad : recovery test; at ``perturb_frame`` (-1 = never)
         the state's DOFs of limb ``perturb_part`` (l_arm, r_arm, l_leg, r_leg) are shifted by
         ``perturb_rad`` radians before the frame is tracked
@@ -96,6 +100,7 @@ class DepthOptions:
     crop_margin: float = 0.25
     area_unit: float = 0.0016
     refine_passes: int = 0
+    velocity_search: float = 0.0
     perturb_frame: int = -1
     perturb_part: str = "r_arm"
     perturb_rad: float = 0.5
@@ -116,7 +121,7 @@ class DepthOptions:
         if self.grid < 2:
             bad.append(f"grid = {self.grid} (must be >= 2)")
         for k in ("penalty", "prior_weight", "bg_tolerance", "bg_sigmas", "range_noise_2m",
-                  "crop_margin", "area_unit", "refine_passes"):
+                  "crop_margin", "area_unit", "refine_passes", "velocity_search"):
             if getattr(self, k) < 0:
                 bad.append(f"{k} = {getattr(self, k)} (must be >= 0)")
         if self.perturb_part not in PERTURB_PARTS:
@@ -301,7 +306,7 @@ class HillClimbDepthTracker(Tracker):
         HillClimbResult with the evaluations of all sweeps.
         """
         cost = self.objective(x_pred)
-        steps = self.opt.search_sigmas * self.sigma if steps is None else np.asarray(steps)
+        steps = self.search_steps() if steps is None else np.asarray(steps)
         levels = self.opt.levels if levels is None else levels
         res = self._climb(cost, x_start, self.order, steps, levels)
         evals, calls = res.evaluations, res.calls
@@ -314,6 +319,14 @@ class HillClimbDepthTracker(Tracker):
                 if r.cost <= res.cost:
                     res = r
         return type(res)(res.x, res.cost, evals, calls)
+
+    def search_steps(self) -> np.ndarray:
+        """(D,) half-widths of the coarsest hill-climbing grid: ``search_sigmas`` inter-frame
+        sigmas plus ``velocity_search`` times the last frame's speed of each DOF."""
+        steps = self.opt.search_sigmas * self.sigma
+        if self.v is not None and self.opt.velocity_search > 0:
+            steps = steps + self.opt.velocity_search * np.abs(self.v)
+        return steps
 
     # -- tracking -------------------------------------------------------------------------
     def start(self, frame, params, velocity=None):
@@ -334,7 +347,11 @@ class HillClimbDepthTracker(Tracker):
                 if len(pts) == 0:
                     pts = pin.center[None] + pin.R[2] * 3.0  # nothing seen: look 3 m ahead
             cam, zc = crop_camera(pin, pts, self.opt.tile, margin)
-            self._make_engine(cam)
+            if self.engine is None:
+                self._make_engine(cam)
+            else:  # keeps the compiled programs and buffers: only the window moves
+                self.engine.set_camera(0, cam)
+                self.view = cam
             self.engine.set_depth(0, resample_depth(z, pin, cam))
         else:
             self.engine.set_depth(0, z)

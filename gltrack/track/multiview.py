@@ -8,10 +8,14 @@ Methods (``gltrack track DATASET --method M``), all on the same observation mode
   Bandouch's order (pose and lower torso, upper torso, thighs, shins, upper arms, forearms);
 * ``hps``: Bandouch's hierarchical sampler: annealed torso, then parallel limb pipelines.
 
-Motion model: each particle keeps its last state and is diffused with zero-mean Gaussian noise of
-the body-part dependent inter-frame standard deviations (``DofSet.sigma_at(fps)``), clamped to
-the joint limits (``StateSpace.from_dofs``). The resampled particle set of one frame is the prior
-of the next.
+Motion model (``prior``): ``"diffusion"`` (default), each particle keeps its last state and is
+diffused with zero-mean Gaussian noise of the body-part dependent inter-frame standard deviations
+(``DofSet.sigma_at(fps)``), clamped to the joint limits (``StateSpace.from_dofs``); or ``"vlmm"``,
+the learnt behaviour model ``prior_model`` (``gltrack learn``,
+:class:`gltrack.track.vlmm.VlmmPrior`) predicts every particle once per frame and replaces the first diffusion layer of each sampler
+stage (the annealing layers after it still diffuse as usual). The resampled particle set of one
+frame is the prior of the next; with ``"vlmm"`` each resampled particle inherits the VLMM history
+of the predicted particle it descends from (``VlmmPrior.follow``).
 
 Observation per frame and colour camera (all images undistorted first, masks with nearest
 neighbour; the engine renders the undistorted pinhole cameras):
@@ -58,7 +62,8 @@ import numpy as np
 
 from gltrack.render.engine import ScoringEngine
 from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, PartitionedSampler,
-                            SIRFilter, StateSpace, bandouch_weights, fine_partitions)
+                            SIRFilter, StateSpace, bandouch_weights, default_partitions,
+                            default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 
 from .base import FrameEstimate, Tracker
@@ -74,6 +79,8 @@ METHOD_DEFAULTS = {"sir": (800, 1), "apf": (800, 10), "ps": (1600, 1), "hps": (2
 ESTIMATES = ("mean", "best")
 WEIGHTS = ("bandouch", "exp")
 FOREGROUNDS = ("auto", "dataset", "background")
+PRIORS = ("diffusion", "vlmm")
+APPEARANCE_INITS = ("full", "tile")
 
 
 @dataclass
@@ -90,8 +97,12 @@ class MultiviewOptions:
     min_spread : hps: stop torso annealing once every torso DOF's weighted standard deviation is
         below ``min_spread`` inter-frame sigmas (Bandouch's variance threshold); 0 = off
     diffusion : "covariance" (default), "layer_variance" or "constant" layer noise
+    sigma_scale : multiplier of the motion model's inter-frame sigmas ``DofSet.sigma_at(fps)``
     tile : engine tile side in pixels (power of two); observations are resampled to it
     appearance : use the colour appearance model (channel c_A) when the cameras are colour
+    appearance_init : "full" samples the start pose's colours at full camera resolution (CPU
+        rasteriser, every visible triangle), "tile" at the engine's tile resolution, where a
+        64-pixel tile sees only a few dozen of the ~2000 triangles
     appearance_refine : add colours seen at the estimate every this many frames (0 = never)
     environment : use the blocking layer (occluder polygons, non-human foreground removal)
     foreground : "auto" (dataset masks when present, else background subtraction), "dataset",
@@ -102,6 +113,11 @@ class MultiviewOptions:
     estimate : "mean" (weighted mean, default) or "best" (highest-weight particle)
     velocity : fraction of the last frame's change of the estimate added to every particle before
         diffusion (0 = Bandouch's "last state + diffusion"; 1 = constant velocity)
+    prior : motion model, "diffusion" (Gaussian, default) or "vlmm" (learnt behaviour model)
+    prior_model : path of the behaviour model .npz (``gltrack learn``); required with "vlmm"
+    prior_lam : noise attenuation of the behaviour model's local dynamics (eq. 4 of Caillette)
+    prior_diffusion : Gaussian diffusion (in inter-frame sigmas) each sampler stage still adds in
+        its first layer after the behaviour model's prediction
     """
 
     particles: int = 0
@@ -111,8 +127,10 @@ class MultiviewOptions:
     survival: float = 0.0
     min_spread: float = 0.0
     diffusion: str = "covariance"
+    sigma_scale: float = 1.0
     tile: int = 64
     appearance: bool = True
+    appearance_init: str = "full"
     appearance_refine: int = 0
     environment: bool = True
     foreground: str = "auto"
@@ -122,6 +140,10 @@ class MultiviewOptions:
     sharpness: float = 20.0
     estimate: str = "mean"
     velocity: float = 0.0
+    prior: str = "diffusion"
+    prior_model: str = ""
+    prior_lam: float = 0.5
+    prior_diffusion: float = 0.5
 
     def __post_init__(self):
         def choice(name, allowed):
@@ -133,6 +155,13 @@ class MultiviewOptions:
         choice("estimate", ESTIMATES)
         choice("weights", WEIGHTS)
         choice("foreground", FOREGROUNDS)
+        choice("prior", PRIORS)
+        choice("appearance_init", APPEARANCE_INITS)
+        if self.prior == "vlmm" and not self.prior_model:
+            raise ValueError("option prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour "
+                             "model written by gltrack learn)")
+        if self.prior_lam < 0 or self.prior_diffusion < 0:
+            raise ValueError("options prior_lam and prior_diffusion must be >= 0")
         for name in ("particles", "layers", "appearance_refine"):
             if getattr(self, name) < 0:
                 raise ValueError(f"option {name} must be >= 0, got {getattr(self, name)}")
@@ -141,6 +170,8 @@ class MultiviewOptions:
                 raise ValueError(f"option {name} must be >= 1, got {getattr(self, name)}")
         if not 0.0 <= self.survival < 1.0:
             raise ValueError(f"option survival must be in [0, 1), got {self.survival}")
+        if not self.sigma_scale > 0:
+            raise ValueError(f"option sigma_scale must be > 0, got {self.sigma_scale}")
         if self.min_spread < 0 or self.sharpness <= 0:
             raise ValueError("options min_spread must be >= 0 and sharpness > 0")
         if self.shape_weight < 0 or self.appearance_weight < 0 or \
@@ -235,7 +266,7 @@ def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
                          f"{', '.join(METHOD_DEFAULTS)}")
     n_def, l_def = METHOD_DEFAULTS[method]
     n, layers = opt.particles or n_def, opt.layers or l_def
-    space = StateSpace.from_dofs(dofs, fps)
+    space = StateSpace(dofs.lower, dofs.upper, opt.sigma_scale * dofs.sigma_at(fps))
     kw = {"alpha": opt.survival} if opt.survival else {}
     if method == "sir":
         return SIRFilter(space), n
@@ -245,9 +276,10 @@ def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
         return PartitionedSampler(space, fine_partitions(dofs), layers=layers,
                                   diffusion=opt.diffusion, **kw), n
     spread = opt.min_spread or None
-    return HierarchicalSampler.from_dofs(dofs, fps, limb_layers=opt.limb_layers,
-                                         joint_layers=opt.joint_layers, torso_layers=layers,
-                                         min_spread=spread, diffusion=opt.diffusion, **kw), n
+    pipes = default_pipelines(dofs, limb_layers=opt.limb_layers, joint_layers=opt.joint_layers)
+    return HierarchicalSampler(space, default_partitions(dofs)["torso"], pipes,
+                               torso_layers=layers, min_spread=spread, diffusion=opt.diffusion,
+                               **kw), n
 
 
 class MultiviewTracker(Tracker):
@@ -278,6 +310,12 @@ class MultiviewTracker(Tracker):
 
             self.env = EnvironmentLayers(ctx, self.obs.pinholes, programs=self.engine.programs)
         self.sampler, self.n = make_sampler(self.method, body.dofs, dataset.fps, self.opt)
+        self.prior = None
+        if self.opt.prior == "vlmm":
+            from .vlmm import vlmm_prior
+
+            self.prior = vlmm_prior(self.opt.prior_model, body.dofs, dataset.fps,
+                                    lam=self.opt.prior_lam)
         self.use_appearance = bool(self.opt.appearance)
         self.channels = ["silhouette", "appearance"] if self.use_appearance else ["silhouette"]
         self.appearance = None
@@ -355,7 +393,9 @@ class MultiviewTracker(Tracker):
             images, masks = self.obs(frame)
             self.appearance = AppearanceModel.from_first_frame(
                 self.body.mesh, self.body.skinning(x[None])[0], self.obs.pinholes, images, masks,
-                engine=self.engine, rng=self.rng)
+                engine=self.engine if self.opt.appearance_init == "tile" else None, rng=self.rng)
+        if self.prior is not None:
+            self.prior.reset(self.particles, self.rng)
         self.frames_done = 0
         self.last = x
         self.velocity = np.zeros_like(x) if velocity is None else np.asarray(velocity, float)
@@ -366,8 +406,12 @@ class MultiviewTracker(Tracker):
         images, fgs, _ = self.observe(frame)
         if self.opt.velocity:
             self.particles = self.body.dofs.validate(self.particles + self.opt.velocity * self.velocity)
-        res = self.sampler.step(self.particles, self.weights, self.rng)
+        predict = self.prior.predict if self.prior is not None else None
+        res = self.sampler.step(self.particles, self.weights, self.rng, predict_fn=predict,
+                                predict_scale=self.opt.prior_diffusion)
         self.particles = res.particles
+        if self.prior is not None:
+            self.prior.follow(self.particles)
         x = res.estimate if self.opt.estimate == "mean" else res.best
         x = self.body.dofs.validate(x)[0]
         self.velocity, self.last = x - self.last, x
