@@ -199,7 +199,7 @@ def test_model_roundtrip_and_validation(trained, tmp_path):
 
 
 def test_learn_parts_command_on_a_dataset(body, tmp_path, capsys):
-    from gltrack.commands import learn_parts
+    from gltrack.cli import learn_parts
     from gltrack.data.dataset import DatasetWriter
 
     sk, dofs, kin, pm, mesh = body

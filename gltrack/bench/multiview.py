@@ -86,7 +86,7 @@ def method_configs(budget: int, n_partitions: int = 10) -> dict:
 def _has_simulator() -> bool:
     import importlib.util
 
-    return importlib.util.find_spec("gltrack.commands.synth") is not None
+    return importlib.util.find_spec("gltrack.cli.synth") is not None
 
 
 def synth(bvh: Path, out: Path, frames: tuple, *, fps: float = 30.0, seed: int = 0,

@@ -1,4 +1,4 @@
-"""The ``gltrack`` command line: one sub-command per module in :mod:`gltrack.commands`.
+"""The ``gltrack`` command line: one sub-command per module of this package.
 
 Each command module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 Exit codes: 0 ok, 1 failure (bad input file, tracking error), 2 bad usage. Errors are one line on
@@ -20,9 +20,9 @@ class UsageError(Exception):
 
 def _load(name):
     try:
-        return importlib.import_module(f"gltrack.commands.{name.replace('-', '_')}")
+        return importlib.import_module(f"gltrack.cli.{name.replace('-', '_')}")
     except ModuleNotFoundError as exc:
-        if exc.name == f"gltrack.commands.{name.replace('-', '_')}":
+        if exc.name == f"gltrack.cli.{name.replace('-', '_')}":
             return None
         raise
 
@@ -73,3 +73,13 @@ def main(argv=None) -> int:
             raise
         print(f"gltrack {args.command}: error: {exc}", file=sys.stderr)
         return 1
+
+
+def check_output_file(out, fps, usage_error):
+    """Shared ``--out FILE`` / ``--fps`` validation of the export and render commands."""
+    if out.is_dir():
+        raise usage_error(f"--out {out} is a folder, not a file")
+    if not out.parent.is_dir():
+        raise usage_error(f"--out {out}: folder {out.parent} does not exist")
+    if fps is not None and not fps > 0:
+        raise usage_error(f"--fps must be positive, got {fps}")

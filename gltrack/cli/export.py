@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.commands import check_output_file
+from gltrack.cli import check_output_file
 
 NAME = "export"
 HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.commands import check_output_file
+from gltrack.cli import check_output_file
 
 NAME = "render"
 HELP = ("overlay video: the tracked body, its skeleton and the ground truth drawn over the "
