@@ -100,7 +100,8 @@ def test_other_methods_run_and_count_evaluations(dataset, tmp_path, method, conf
 def test_options_are_validated(dataset, tmp_path):
     path, _, _ = dataset
     cfg = tmp_path / "bad.toml"
-    for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n"):
+    for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
+                 "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
@@ -213,3 +214,31 @@ def test_prior_option_is_validated(periodic, tmp_path, capsys):
         rc = main(["-q", "track", str(root / "ds"), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
         assert rc == 1 and needle in capsys.readouterr().err, text
+
+
+def test_sigma_scale_and_full_resolution_appearance(dataset, ctx):
+    """sigma_scale scales the motion model's noise (0: square-root scaling of the 30 fps sigmas
+    with the frame rate); the default appearance initialisation at
+    camera resolution gives colours to many more triangles than sampling the 64-pixel tiles."""
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import HPSTracker, MultiviewOptions, make_sampler
+
+    path, body, P = dataset
+    a, _ = make_sampler("hps", body.dofs, FPS, MultiviewOptions())
+    b, _ = make_sampler("ps", body.dofs, FPS, MultiviewOptions(sigma_scale=0.7))
+    c, _ = make_sampler("hps", body.dofs, FPS, MultiviewOptions(sigma_scale=0))
+    np.testing.assert_allclose(a.space.sigma, body.dofs.sigma_at(FPS))
+    np.testing.assert_allclose(b.space.sigma, 0.7 * body.dofs.sigma_at(FPS))
+    np.testing.assert_allclose(c.space.sigma, body.dofs.sigma30 * np.sqrt(30.0 / FPS))
+    ds = Dataset.open(path)
+    seen = {}
+    for init in ("tile", "full"):
+        tr = HPSTracker(ds, body, ctx, MultiviewOptions(particles=6, tile=16,
+                                                        appearance_init=init),
+                        np.random.default_rng(0))
+        try:
+            tr.start(0, P[0])
+            seen[init] = np.unique(tr.appearance._tri).size
+        finally:
+            tr.close()
+    assert seen["full"] > 3 * seen["tile"] > 0, seen

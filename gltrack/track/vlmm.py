@@ -196,7 +196,9 @@ def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
 
     Hook: replace the tracker's ``diffuse(particles)`` by ``prior.predict(particles, rng)``
     before weighting, and after the sampler's resampling call ``prior.select(indices)`` or
-    ``prior.follow(result.particles)``.
+    ``prior.follow(result.particles)``. The samplers of :mod:`gltrack.sample` take it directly:
+    ``res = sampler.step(particles, weight_fn, rng, predict_fn=prior.predict)`` then
+    ``prior.follow(res.particles)`` (what the multi-view trackers do with ``prior = "vlmm"``).
     """
     if not isinstance(model, BehaviourModel):
         model = BehaviourModel.load(model)
