@@ -218,45 +218,42 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     ctx = shared_context()
     result["renderer"] = str(ctx.info.get("GL_RENDERER"))
-    try:
-        for clip in names:
-            bvh_name, first = CLIPS[clip]
-            bvh = shared / "mocap" / bvh_name
-            if not bvh.is_file():
-                result["clips"][clip] = {"skipped": f"{bvh} not found"}
-                continue
-            ds = synth_depth(bvh, work / clip / "data", first, n)
-            entry = {"source_frames": [first, first + int(round(n * SOURCE_FPS / FPS))],
-                     "runs": {}, "recovery": {}}
-            unperturbed = {}
-            for lik, smooth in liks.items():
-                for method in METHODS:
-                    out = work / clip / f"{method}_{lik}"
-                    row, res, gt = _run(ds, method, {"smooth": smooth}, out, ctx)
-                    entry["runs"][f"{method}/{lik}"] = row
-                    if smooth:
-                        unperturbed[method] = limb_error(res, gt, PERTURB_PART)
-                    log.info("%s %s/%s: %s", clip, method, lik, row)
-            for method in ("hc", "hc+ep"):
-                opts = {"perturb_frame": PERTURB_AT, "perturb_part": PERTURB_PART,
-                        "perturb_rad": PERTURB_RAD}
-                row, res, gt = _run(ds, method, opts, work / clip / f"{method}_recovery", ctx)
-                err = limb_error(res, gt, PERTURB_PART)
-                start = PERTURB_AT - int(res["frame"][0])
-                k = recovery_frames(err, start)
-                left = len(err) - start
-                entry["recovery"][method] = {
-                    "frames": k, "perturbed_frame": PERTURB_AT, "part": PERTURB_PART,
-                    "radians": PERTURB_RAD,
-                    "text": f"{k} frames" if k is not None else f"not recovered within {left} frames",
-                    "arm_error_m": [round(float(e), 4) for e in err],
-                    "unperturbed_arm_error_m": [round(float(e), 4) for e in unperturbed[method]],
-                    "arm_error_after_m": float(err[start:].mean()),
-                    "unperturbed_arm_error_after_m": float(unperturbed[method][start:].mean()),
-                    "marker_mean_m": row["marker_mean_m"]}
-            result["clips"][clip] = entry
-    finally:
-        pass  # the shared context lives as long as the process
+    for clip in names:
+        bvh_name, first = CLIPS[clip]
+        bvh = shared / "mocap" / bvh_name
+        if not bvh.is_file():
+            result["clips"][clip] = {"skipped": f"{bvh} not found"}
+            continue
+        ds = synth_depth(bvh, work / clip / "data", first, n)
+        entry = {"source_frames": [first, first + int(round(n * SOURCE_FPS / FPS))],
+                 "runs": {}, "recovery": {}}
+        unperturbed = {}
+        for lik, smooth in liks.items():
+            for method in METHODS:
+                out = work / clip / f"{method}_{lik}"
+                row, res, gt = _run(ds, method, {"smooth": smooth}, out, ctx)
+                entry["runs"][f"{method}/{lik}"] = row
+                if smooth:
+                    unperturbed[method] = limb_error(res, gt, PERTURB_PART)
+                log.info("%s %s/%s: %s", clip, method, lik, row)
+        for method in ("hc", "hc+ep"):
+            opts = {"perturb_frame": PERTURB_AT, "perturb_part": PERTURB_PART,
+                    "perturb_rad": PERTURB_RAD}
+            row, res, gt = _run(ds, method, opts, work / clip / f"{method}_recovery", ctx)
+            err = limb_error(res, gt, PERTURB_PART)
+            start = PERTURB_AT - int(res["frame"][0])
+            k = recovery_frames(err, start)
+            left = len(err) - start
+            entry["recovery"][method] = {
+                "frames": k, "perturbed_frame": PERTURB_AT, "part": PERTURB_PART,
+                "radians": PERTURB_RAD,
+                "text": f"{k} frames" if k is not None else f"not recovered within {left} frames",
+                "arm_error_m": [round(float(e), 4) for e in err],
+                "unperturbed_arm_error_m": [round(float(e), 4) for e in unperturbed[method]],
+                "arm_error_after_m": float(err[start:].mean()),
+                "unperturbed_arm_error_after_m": float(unperturbed[method][start:].mean()),
+                "marker_mean_m": row["marker_mean_m"]}
+        result["clips"][clip] = entry
         if not out_dir:
             shutil.rmtree(work, ignore_errors=True)
     result["targets"] = _targets(result["clips"])

@@ -281,29 +281,26 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
     ctx = shared_context()
     res["machine"] = machine_name()
     res["renderer"] = ctx.info.get("GL_RENDERER", "?")
-    try:
-        for clip in clips:
-            bvh_name, first = CLIPS[clip]
-            bvh = shared / "mocap" / bvh_name
-            if not bvh.is_file():
-                res["skipped"].append(f"{clip}: {bvh} missing")
-                continue
-            src = (first, first + 4 * n_frames)  # 120 frames/s source -> n_frames at 30 frames/s
-            ds = work / f"{clip}_ds"
-            t0 = time.perf_counter()
-            if simulator:
-                synth(bvh, ds, src, seed=seed)
-            else:
-                _fallback_dataset(bvh, ds, src, 30.0, seed, (160, 120))
-            log.info("%s: dataset in %.1f s", clip, time.perf_counter() - t0)
-            res["clips"][clip] = _bench_clip(ds, work / clip, budget, presets, ctx, seed)
-        if environment and "walk" in CLIPS:
-            if not simulator:
-                res["skipped"].append("environment cases: need gltrack synth (--occluder/--distractor)")
-            else:
-                res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
-    finally:
-        pass  # the shared context lives as long as the process
+    for clip in clips:
+        bvh_name, first = CLIPS[clip]
+        bvh = shared / "mocap" / bvh_name
+        if not bvh.is_file():
+            res["skipped"].append(f"{clip}: {bvh} missing")
+            continue
+        src = (first, first + 4 * n_frames)  # 120 frames/s source -> n_frames at 30 frames/s
+        ds = work / f"{clip}_ds"
+        t0 = time.perf_counter()
+        if simulator:
+            synth(bvh, ds, src, seed=seed)
+        else:
+            _fallback_dataset(bvh, ds, src, 30.0, seed, (160, 120))
+        log.info("%s: dataset in %.1f s", clip, time.perf_counter() - t0)
+        res["clips"][clip] = _bench_clip(ds, work / clip, budget, presets, ctx, seed)
+    if environment and "walk" in CLIPS:
+        if not simulator:
+            res["skipped"].append("environment cases: need gltrack synth (--occluder/--distractor)")
+        else:
+            res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
         if own_dir and not keep:
             shutil.rmtree(work, ignore_errors=True)
     res["seconds"] = round(time.perf_counter() - t_start, 1)
