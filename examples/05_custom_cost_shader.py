@@ -2,7 +2,7 @@
 
 A custom cost is a GLSL file defining ``float custom_cost(ivec2 pixel, ivec2 local)``; the engine
 sums it per candidate into channel 3 ("custom"). ``pixel`` indexes the rendered grid textures
-(``model_z``: camera depth of the model, 0 = none; ``model_tri``: 1 + triangle id) and ``local`` the
+(``model_z``: camera depth of the model, 0 = none; ``model_tri``: ``.g`` = 1 + triangle id) and ``local`` the
 tile-sized observation textures (``obs_z``, ``obs_mask``, ``obs_bits``). Here: a truncated absolute
 depth difference (an L1 alternative to Ganapathi's smoothstep).
 

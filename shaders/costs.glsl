@@ -7,7 +7,7 @@
 // Enabled by #defines: CH_DEPTH, CH_DEPTH_SMOOTH, CH_SILHOUETTE, CH_APPEARANCE, CH_CUSTOM.
 
 uniform sampler2D model_z;    // grid texture: camera z of the model, 0 = no model
-uniform isampler2D model_tri; // grid texture: 1 + triangle id, 0 = no model
+uniform sampler2D model_tri;  // grid texture: .g = 1 + triangle id (a float), 0 = no model
 uniform sampler2D obs_z;      // tile-sized: observed depth in metres, 0 = no observation
 uniform sampler2D obs_mask;   // tile-sized: r = foreground, g = blocked (Bandouch's I_B)
 uniform usampler2D obs_bits;  // tile-sized: HLS bitmasks of the observed colour (h, l, s)
@@ -62,7 +62,7 @@ vec4 pixel_costs(ivec2 p) {
     c.y = (model_on != fg && !blocked) ? 1.0 : 0.0;
 #endif
 #ifdef CH_APPEARANCE
-    int tri = texelFetch(model_tri, p, 0).r - 1;
+    int tri = int(texelFetch(model_tri, p, 0).g) - 1;
     if (tri >= 0 && !blocked) {
         uvec3 ob = texelFetch(obs_bits, local, 0).rgb;
         uvec3 tb = texelFetch(tri_bits, ivec2(tri % 1024, tri / 1024), 0).rgb;

@@ -76,7 +76,8 @@ class CustomCost:
     """A user's per-pixel cost in GLSL, summed into channel ``custom``.
 
     The file must define ``float custom_cost(ivec2 pixel, ivec2 local)`` where ``pixel`` is the
-    texel in the grid textures (``model_z``, ``model_tri``) and ``local`` the texel in the
+    texel in the grid textures (``model_z``: ``.r`` = camera depth of the model, 0 = none;
+    ``model_tri``: ``.g`` = 1 + triangle id as a float, 0 = none) and ``local`` the texel in the
     tile-sized observation textures (``obs_z``, ``obs_mask``, ``obs_bits``); it may call
     ``depth_pixel(zo, zm)`` and read ``depth_params``, ``tile`` (see ``shaders/costs.glsl``).
     Test it against a CPU twin the same way the stock costs are tested (examples/05).
@@ -219,11 +220,13 @@ class ScoringEngine:
         ctx, W, H = self.ctx, cols * self.tile, rows * self.tile
         park_framebuffer(ctx)  # whatever is bound may be released by other code later
         z = ctx.texture((W, H), 1, dtype="f4")
-        tri = ctx.texture((W, H), 1, dtype="i4")
-        for t in (z, tri):
-            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        # Depth and triangle id in one RG32F attachment (id + 1 as a float, exact below 2^24):
+        # one colour write per fragment instead of two, which software GL notices.
+        zt = ctx.texture((W, H), 2, dtype="f4")
+        for tex in (z, zt):
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         depth = ctx.depth_renderbuffer((W, H))
-        fbo = ctx.framebuffer(color_attachments=[z, tri], depth_attachment=depth)
+        fbo = ctx.framebuffer(color_attachments=[zt], depth_attachment=depth)
         fbo_z = ctx.framebuffer(color_attachments=[z], depth_attachment=depth)
         levels = int(np.log2(self.tile))
         cost = ctx.texture((W, H), 4, dtype="f4")
@@ -232,7 +235,7 @@ class ScoringEngine:
         bones = ctx.texture((3 * self.n_bones, cols * rows), 4, dtype="f4")
         bones.filter = (moderngl.NEAREST, moderngl.NEAREST)
         sums = ctx.buffer(reserve=cols * rows * 16) if ctx.version_code >= 430 else None
-        t = dict(z=z, tri=tri, depth=depth, fbo=fbo, fbo_z=fbo_z, cost=cost, cost_fbo=cost_fbo, bones=bones,
+        t = dict(z=z, zt=zt, depth=depth, fbo=fbo, fbo_z=fbo_z, cost=cost, cost_fbo=cost_fbo, bones=bones,
                  sums=sums, levels=levels, W=W, H=H)
         # Keep at most two grid sizes alive: memory stays bounded whatever batch sizes come.
         if len(self._targets) >= 2:
@@ -243,7 +246,7 @@ class ScoringEngine:
 
     @staticmethod
     def _release_target(t):
-        for k in ("fbo", "fbo_z", "cost_fbo", "z", "tri", "depth", "cost", "bones", "sums"):
+        for k in ("fbo", "fbo_z", "cost_fbo", "z", "zt", "depth", "cost", "bones", "sums"):
             if t.get(k) is not None:
                 t[k].release()
 
@@ -387,7 +390,7 @@ class ScoringEngine:
             self._auto_pending = False
             self.reduction = self._time_reductions(t, n, cols, rows, channels)
         res = np.empty((n, len(self.views), 4))
-        with_tri = "appearance" in channels or "custom" in channels
+        with_tri = self._needs_tri(channels)
         for c, v in enumerate(self.views):
             self._render(t, v, n, cols, rows, with_tri)
             res[:, c] = self._reduce(t, v, n, cols, rows, channels, self.reduction)
@@ -428,8 +431,13 @@ class ScoringEngine:
         # clears integer attachments with the bit pattern of a float, so only 0 is portable).
         (t["fbo"] if with_tri else t["fbo_z"]).clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
 
+    @staticmethod
+    def _needs_tri(channels):
+        return "appearance" in channels or "custom" in channels
+
     def _bind_cost_inputs(self, prog, t, v, channels):
-        units = {"model_z": t["z"], "model_tri": t["tri"], "obs_z": v.obs_z, "obs_mask": v.obs_mask,
+        model = t["zt"] if self._needs_tri(channels) else t["z"]
+        units = {"model_z": model, "model_tri": model, "obs_z": v.obs_z, "obs_mask": v.obs_mask,
                  "obs_bits": v.obs_bits, "tri_bits": v.tri_bits}
         for unit, (name, tex) in enumerate(units.items()):
             if name in prog and tex is not None:
@@ -477,7 +485,7 @@ class ScoringEngine:
                                      v.obs_mask if "silhouette" in channels else 0,
                                      v.obs_bits if "appearance" in channels else 0)):
             return "compute"
-        self._render(t, v, n, cols, rows, "appearance" in channels or "custom" in channels)
+        self._render(t, v, n, cols, rows, self._needs_tri(channels))
         times = {}
         for method in ("mipmap", "compute"):
             self._reduce(t, v, n, cols, rows, channels, method)  # compile and warm up
@@ -506,8 +514,9 @@ class ScoringEngine:
         t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
         self._render(t, self._check_view(cam), n, cols, rows)
         T = self.tile
-        z = np.frombuffer(t["z"].read(), np.float32).reshape(rows, T, cols, T).transpose(0, 2, 1, 3)
-        tri = np.frombuffer(t["tri"].read(), np.int32).reshape(rows, T, cols, T).transpose(0, 2, 1, 3) - 1
+        zt = np.frombuffer(t["zt"].read(), np.float32).reshape(rows, T, cols, T, 2).transpose(0, 2, 1, 3, 4)
+        z = zt[..., 0]
+        tri = zt[..., 1].astype(np.int32) - 1
         return z.reshape(-1, T, T)[:n].copy(), tri.reshape(-1, T, T)[:n].copy()
 
     def release(self):
