@@ -38,8 +38,12 @@ PY="$VENV/bin/python"
 STAMP="$VENV/.gltrack-installed"
 if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
     echo "gltrack setup: installing gltrack and its dependencies into $VENV"
-    "$PY" -m pip install -q --upgrade pip >/dev/null
-    "$PY" -m pip install -q -e "$ROOT[test]"
+    LOG="$VENV/pip-install.log"
+    if ! { "$PY" -m pip install --upgrade pip && "$PY" -m pip install -e "$ROOT[test]"; } >"$LOG" 2>&1; then
+        tail -n 30 "$LOG" >&2
+        echo "gltrack setup: pip install failed (full log: $LOG)" >&2
+        exit 1
+    fi
     touch "$STAMP"
 fi
 export PY

@@ -34,8 +34,20 @@ log = logging.getLogger(__name__)
 NOISE_LEVELS = {"none": 0.0, "default": 1.0, "heavy": 2.5}
 
 
+class NoisePreset:
+    """Mixin for noise-model dataclasses with a ``level`` field scaling every effect."""
+
+    @classmethod
+    def preset(cls, name: str):
+        """The model for a ``--noise`` name: ``none``, ``default`` or ``heavy``."""
+        if name not in NOISE_LEVELS:
+            raise ValueError(f"unknown noise level {name!r}; choose one of "
+                             f"{', '.join(NOISE_LEVELS)}")
+        return replace(cls(), level=NOISE_LEVELS[name])
+
+
 @dataclass(frozen=True)
-class TofNoise:
+class TofNoise(NoisePreset):
     """Parameters of the ToF noise model (see module docstring).
 
     Attributes
@@ -54,14 +66,6 @@ class TofNoise:
     jump: float = 0.1
     dropout_rate: float = 0.003
     min_amplitude: float = 0.03
-
-    @classmethod
-    def preset(cls, name: str) -> "TofNoise":
-        """The model for a ``--noise`` name: ``none``, ``default`` or ``heavy``."""
-        if name not in NOISE_LEVELS:
-            raise ValueError(f"unknown noise level {name!r}; choose one of "
-                             f"{', '.join(NOISE_LEVELS)}")
-        return replace(cls(), level=NOISE_LEVELS[name])
 
     def sigma(self, z) -> np.ndarray:
         """Gaussian range noise standard deviation, metres, at depth ``z`` (metres)."""

@@ -3,7 +3,7 @@
 Sensor model (:func:`sensor_image`), per frame and camera: a global gain ``1 + N(0, gain_sigma)``
 and offset ``N(0, offset_sigma)`` grey levels per channel (auto-exposure and white-balance
 flicker), then independent per-pixel Gaussian noise of ``pixel_sigma`` grey levels, rounding to
-8 bits. Every term is multiplied by the noise level (:data:`NOISE_LEVELS`).
+8 bits. Every term is multiplied by the noise level (:data:`gltrack.data.sim_depth.NOISE_LEVELS`).
 
 Masks come from a real background-subtraction algorithm, :class:`BackgroundModel`: OpenCV's
 Gaussian-mixture subtractor (MOG2, Zivkovic 2004) trained on empty-scene frames that carry the
@@ -16,18 +16,18 @@ that is not the subject.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from .sim_depth import NOISE_LEVELS
+from .sim_depth import NoisePreset
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class ColourNoise:
+class ColourNoise(NoisePreset):
     """Colour sensor noise parameters (see module docstring).
 
     Attributes
@@ -42,14 +42,6 @@ class ColourNoise:
     gain_sigma: float = 0.03
     offset_sigma: float = 2.0
     pixel_sigma: float = 2.5
-
-    @classmethod
-    def preset(cls, name: str) -> "ColourNoise":
-        """The model for a ``--noise`` name: ``none``, ``default`` or ``heavy``."""
-        if name not in NOISE_LEVELS:
-            raise ValueError(f"unknown noise level {name!r}; choose one of "
-                             f"{', '.join(NOISE_LEVELS)}")
-        return replace(cls(), level=NOISE_LEVELS[name])
 
 
 def sensor_image(rgb, rng: np.random.Generator, model: ColourNoise | None = None) -> np.ndarray:
