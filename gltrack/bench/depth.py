@@ -27,7 +27,6 @@ error <= 0.05 m and <= 1 % markers failed on every clip; hc+ep no worse than hc 
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import subprocess
 import sys
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import machine_name
+from . import machine_name, shared_dir
 
 log = logging.getLogger(__name__)
 
@@ -64,16 +63,6 @@ LIMB_MARKERS = {
 TARGET_MEAN_M = 0.05
 TARGET_FAILED = 0.01
 NO_WORSE_TOL_M = 0.002
-
-
-def shared_dir() -> Path | None:
-    """``GLTRACK_SHARED`` or ``../shared`` next to the repository, or None."""
-    env = os.environ.get("GLTRACK_SHARED")
-    repo = Path(__file__).resolve().parents[2]
-    for cand in ([Path(env)] if env else []) + [repo.parent / "shared"]:
-        if cand.is_dir():
-            return cand
-    return None
 
 
 def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) -> Path:

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import subprocess
 import sys
@@ -38,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import machine_name
+from . import machine_name, shared_dir
 
 log = logging.getLogger(__name__)
 
@@ -54,16 +53,6 @@ CLIPS = {
 ENV_CASES = {"table": ["--occluder", "table"], "distractor": ["--distractor", "box"]}
 #: Evaluations per particle and frame of HPS with the default pipelines (see module docstring).
 HPS_EVALS_PER_PARTICLE = 15
-
-
-def shared_dir() -> Path | None:
-    """``GLTRACK_SHARED`` or ``../shared`` next to the repository, or None."""
-    env = os.environ.get("GLTRACK_SHARED")
-    repo = Path(__file__).resolve().parents[2]
-    for cand in ([Path(env)] if env else []) + [repo.parent / "shared"]:
-        if cand.is_dir():
-            return cand
-    return None
 
 
 def method_configs(budget: int, n_partitions: int = 10) -> dict:

@@ -97,16 +97,6 @@ def periodic_motion(body, n: int, fps: float = 30.0, phase: float = 0.0,
 
 
 # ------------------------------------------------------------------------------ the bench
-def _shared() -> Path | None:
-    import os
-
-    env = os.environ.get("GLTRACK_SHARED")
-    for cand in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[3] / "shared"]:
-        if cand.is_dir():
-            return cand
-    return None
-
-
 def run_filter(body, engine, gt_joints, start, n, rng, prior=None, survival=0.3):
     """Track with SIR on the engine's silhouette cost (masks already uploaded per frame by
     ``engine_frames``); returns (mean joint error m, per-frame errors, evaluations)."""
@@ -227,11 +217,11 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, data: str = "sim
     from gltrack.motion.retarget import load_motion
     from gltrack.track.vlmm import VlmmPrior
 
-    from . import machine_name
+    from . import machine_name, shared_dir
 
     if data not in ("simulate", "render"):
         raise ValueError(f"data must be 'simulate' or 'render', got {data!r}")
-    root = Path(shared) if shared else _shared()
+    root = Path(shared) if shared else shared_dir()
     clip = root / CLIP if root else None
     if clip is None or not clip.is_file():
         raise FileNotFoundError(f"bench vlmm needs {CLIP} in the shared folder "
