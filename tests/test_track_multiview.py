@@ -242,3 +242,17 @@ def test_sigma_scale_and_full_resolution_appearance(dataset, ctx):
         finally:
             tr.close()
     assert seen["full"] > 3 * seen["tile"] > 0, seen
+
+
+def test_particles_and_layers_flags(dataset, tmp_path, capsys):
+    """--particles / --layers set the sampler budget; flags that do not apply are usage errors."""
+    path = dataset[0]
+    out = tmp_path / "apf_flags"
+    assert main(["-q", "track", str(path), "--method", "apf", "--out", str(out), "--particles", "30",
+                 "--layers", "3", "--frames", "0:2"]) == 0
+    frames = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+    assert all(f["evaluations"] == 30 * 3 + 1 for f in frames), [f["evaluations"] for f in frames]
+    for extra in (["--method", "hc", "--particles", "10"], ["--method", "sir", "--layers", "3"],
+                  ["--method", "hps", "--particles", "0"], ["--method", "hc", "--behaviour", "m.npz"]):
+        assert main(["track", str(path), "--out", str(tmp_path / "bad"), *extra]) == 2
+    assert "does not apply" in capsys.readouterr().err

@@ -18,6 +18,14 @@ def add_arguments(p):
     p.add_argument("--config", metavar="FILE.toml",
                    help="tracker options as a TOML table (unknown keys are errors); see the method's "
                         "Options class for keys and defaults")
+    p.add_argument("--particles", type=int, metavar="N",
+                   help="particles per frame (particle filters; overrides the config file)")
+    p.add_argument("--layers", type=int, metavar="L",
+                   help="annealing layers (apf) / torso layers (hps) (overrides the config file)")
+    p.add_argument("--prior", choices=["diffusion", "vlmm"],
+                   help="motion model of the multi-view particle filters (vlmm needs --behaviour)")
+    p.add_argument("--behaviour", metavar="MODEL.npz",
+                   help="behaviour model from `gltrack learn`: for --method vlmm, or with --prior vlmm")
     p.add_argument("--init", default="groundtruth",
                    help="initial pose: 'groundtruth' (frame 0 of groundtruth.npz), 'auto', or a .npy/.npz file")
     p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
@@ -54,11 +62,38 @@ def load_config(path, usage_error):
         raise ValueError(f"{path}: not valid TOML: {exc}") from None
 
 
+def merge_flags(options: dict, args, usage_error) -> dict:
+    """Command-line flags on top of the ``--config`` table (flags win)."""
+    opts = dict(options)
+    multiview = args.method in ("sir", "apf", "ps", "hps")
+    for flag, key, value, allowed in (
+            ("--particles", "particles", args.particles, multiview or args.method == "vlmm"),
+            ("--layers", "layers", args.layers, args.method in ("apf", "ps", "hps")),
+            ("--prior", "prior", args.prior, multiview)):
+        if value is None:
+            continue
+        if not allowed:
+            raise usage_error(f"{flag} does not apply to --method {args.method}")
+        if key in ("particles", "layers") and value < 1:
+            raise usage_error(f"{flag} must be at least 1, got {value}")
+        opts[key] = value
+    if args.behaviour is not None:
+        if args.method == "vlmm":
+            opts["model"] = args.behaviour
+        elif multiview:
+            opts["prior_model"] = args.behaviour
+            opts.setdefault("prior", "vlmm")
+        else:
+            raise usage_error(f"--behaviour does not apply to --method {args.method}")
+    return opts
+
+
 def run(args):
     from gltrack.cli import UsageError
     from gltrack.track.runner import track
 
-    timing = track(args.dataset, args.method, args.out, options=load_config(args.config, UsageError),
+    options = merge_flags(load_config(args.config, UsageError), args, UsageError)
+    timing = track(args.dataset, args.method, args.out, options=options,
                    init=args.init, resume=args.resume, overwrite=args.overwrite,
                    frames=_frames(args.frames, UsageError), preset=args.dof, seed=args.seed,
                    progress=not args.quiet)
