@@ -274,17 +274,9 @@ def check_groundtruth(arrays, where, frames=None):
 
 def load_groundtruth(path, frames=None):
     """Read and validate a ``groundtruth.npz`` (never unpickling); see :func:`check_groundtruth`."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise ValueError(f"{path}: missing") from None
-    except ValueError as exc:  # object arrays refuse to load without pickle
-        raise ValueError(f"{path}: unreadable ({exc})") from None
-    except (OSError, EOFError) as exc:
-        raise ValueError(f"{path}: not a valid npz file ({exc})") from None
-    return check_groundtruth(arrays, str(path), frames)
+    from gltrack.npz import read_npz
+
+    return check_groundtruth(read_npz(path), str(path), frames)
 
 
 class Dataset:

@@ -416,14 +416,9 @@ def load_results(path):
     path = Path(path)
     npz = path if path.is_file() else path / POSES
     if npz.is_file():
-        try:
-            with np.load(npz, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except ValueError as exc:  # object arrays refuse to load without pickle
-            raise ValueError(f"{npz}: unreadable ({exc})") from None
-        except (OSError, EOFError) as exc:
-            raise ValueError(f"{npz}: not a valid npz file ({exc})") from None
-        return _validate_arrays(arrays, str(npz))
+        from gltrack.npz import read_npz
+
+        return _validate_arrays(read_npz(npz), str(npz))
     if not path.is_dir():
         raise ValueError(f"{path}: no such results folder")
     if not (path / FRAMES).is_file():

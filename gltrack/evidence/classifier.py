@@ -260,14 +260,10 @@ class PartClassifier:
     @classmethod
     def load(cls, path) -> "PartClassifier":
         """Read a model written by :meth:`save`; ``ValueError`` naming the file and field."""
+        from gltrack.npz import read_npz
+
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                a = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise ValueError(f"{path}: missing") from None
-        except (ValueError, OSError, EOFError) as exc:
-            raise ValueError(f"{path}: not a valid npz model ({exc})") from None
+        a = read_npz(path)
 
         def get(key, kind=None, shape=None):
             if key not in a:

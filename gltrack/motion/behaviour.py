@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import logging
-import zipfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -260,19 +259,13 @@ class BehaviourModel:
     @classmethod
     def load(cls, path) -> "BehaviourModel":
         """Read a model written by :meth:`save`; ValueError naming the file and field if invalid."""
+        from gltrack.npz import read_npz
+
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                missing = [k for k in _ARRAYS if k not in z.files]
-                if missing:
-                    raise ValueError(f"{path}: missing field {missing[0]!r}")
-                arrays = {k: z[k] for k in _ARRAYS}
-        except (OSError, zipfile.BadZipFile, EOFError) as e:
-            raise ValueError(f"{path}: not a readable .npz file ({e})") from None
-        except ValueError as e:
-            if str(e).startswith(str(path)):
-                raise
-            raise ValueError(f"{path}: unreadable field ({e})") from None
+        arrays = read_npz(path)
+        missing = [k for k in _ARRAYS if k not in arrays]
+        if missing:
+            raise ValueError(f"{path}: missing field {missing[0]!r}")
 
         m = arrays["meta"]
         if m.dtype.kind != "U" or m.ndim != 0:

@@ -1,0 +1,28 @@
+"""Reading untrusted ``.npz`` files: never unpickle, and name the file in every error."""
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+
+def read_npz(path) -> dict:
+    """All arrays of an ``.npz`` file, loaded with ``allow_pickle=False``.
+
+    Raises
+    ------
+    ValueError
+        ``"<path>: missing"``, ``"<path>: unreadable (...)"`` (e.g. an object array that would need
+        unpickling) or ``"<path>: not a valid npz file (...)"``.
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise ValueError(f"{path}: missing") from None
+    except ValueError as exc:  # object arrays refuse to load without pickle
+        raise ValueError(f"{path}: unreadable ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: not a valid npz file ({exc})") from None
