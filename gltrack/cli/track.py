@@ -13,7 +13,8 @@ def add_arguments(p):
     p.add_argument("--method", required=True, choices=methods,
                    help="hc / hc+ep / ep: depth trackers (Ganapathi); sir / apf / ps / hps: multi-view "
                         "particle filters (Bandouch); vlmm: behaviour-model particle filter (Caillette; "
-                        "needs --config with model = 'MODEL.npz' from gltrack learn)")
+                        "needs --behaviour MODEL.npz from gltrack learn); condensation / apf-blobs: "
+                        "Gaussian-diffusion filters on vlmm's voxel/blob likelihood")
     p.add_argument("--out", required=True, help="results folder to write")
     p.add_argument("--config", metavar="FILE.toml",
                    help="tracker options as a TOML table (unknown keys are errors); see the method's "
@@ -21,7 +22,8 @@ def add_arguments(p):
     p.add_argument("--particles", type=int, metavar="N",
                    help="particles per frame (particle filters; overrides the config file)")
     p.add_argument("--layers", type=int, metavar="L",
-                   help="annealing layers (apf) / torso layers (hps) (overrides the config file)")
+                   help="annealing layers (apf, apf-blobs) / torso layers (hps) (overrides the config "
+                        "file)")
     p.add_argument("--prior", choices=["diffusion", "vlmm"],
                    help="motion model of the multi-view particle filters (vlmm needs --behaviour)")
     p.add_argument("--behaviour", metavar="MODEL.npz",
@@ -63,24 +65,29 @@ def load_config(path, usage_error):
 
 
 def merge_flags(options: dict, args, usage_error) -> dict:
-    """Command-line flags on top of the ``--config`` table (flags win)."""
+    """Command-line flags on top of the ``--config`` table (flags win); a flag whose option the
+    method does not have is a usage error."""
+    import dataclasses
+
+    from gltrack.track.runner import options_class
+
+    fields = {f.name for f in dataclasses.fields(options_class(args.method))}
     opts = dict(options)
-    multiview = args.method in ("sir", "apf", "ps", "hps")
-    for flag, key, value, allowed in (
-            ("--particles", "particles", args.particles, multiview or args.method == "vlmm"),
-            ("--layers", "layers", args.layers, args.method in ("apf", "ps", "hps")),
-            ("--prior", "prior", args.prior, multiview)):
+    for flag, key, value in (("--particles", "particles", args.particles),
+                             ("--layers", "layers", args.layers),
+                             ("--prior", "prior", args.prior)):
         if value is None:
             continue
-        if not allowed:
+        # sir shares the multi-view options but has a single layer by definition
+        if key not in fields or (key == "layers" and args.method == "sir"):
             raise usage_error(f"{flag} does not apply to --method {args.method}")
         if key in ("particles", "layers") and value < 1:
             raise usage_error(f"{flag} must be at least 1, got {value}")
         opts[key] = value
     if args.behaviour is not None:
-        if args.method == "vlmm":
+        if "model" in fields:
             opts["model"] = args.behaviour
-        elif multiview:
+        elif "prior_model" in fields:
             opts["prior_model"] = args.behaviour
             opts.setdefault("prior", "vlmm")
         else:

@@ -7,10 +7,13 @@ Layout::
                      "marker_names": [...] | null}   written once, when the run starts
       frames.jsonl  one JSON object per finished frame, appended and fsync'ed as it is tracked:
                     {"frame", "params", "joints", "markers", "score", "evaluations", "seconds"}
+                    plus, when the tracker gives any, "info": its diagnostics of the frame
       poses.npz     params (N,D), joints (N,J,3) m, joint_names (J,), markers (N,M,3) m,
                     marker_names (M,), score (N,), method (), frame (N,), evaluations (N,),
                     seconds (N,)                        written by ResultsWriter.finish()
-      timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total}
+      timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total} and, when
+                    the tracker reports per-stage times (info "stage_seconds"), "stage_seconds":
+                    their sums over the frames
 
 ``frames.jsonl`` is the source of truth while tracking: a process killed at any point loses at
 most the frame it was writing, and ``ResultsWriter(..., resume=True)`` continues after the last
@@ -38,6 +41,19 @@ BVH = "poses.bvh"
 #: Files derived from frames.jsonl: stale as soon as a resumed run appends.
 _DERIVED = (POSES, TIMING, BVH)
 _RECORD_KEYS = ("frame", "params", "joints", "markers", "score", "evaluations", "seconds")
+
+
+def _jsonable(obj):
+    """``obj`` with numpy scalars and arrays turned into plain Python (for json.dumps)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
 
 
 def _fsync_dir(path):
@@ -113,6 +129,7 @@ def _parse_record(line, where, n_joints, n_markers):
             "score": float(rec["score"]),
             "evaluations": int(rec["evaluations"]),
             "seconds": float(rec["seconds"]),
+            "info": rec["info"] if isinstance(rec.get("info"), dict) else {},
         }
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: bad field value: {exc}") from None
@@ -244,7 +261,8 @@ class ResultsWriter:
         evaluations, seconds), or None when no frame is done."""
         return self._records[-1] if self._records else None
 
-    def append(self, frame, params, joints, markers=None, score=0.0, evaluations=0, seconds=0.0):
+    def append(self, frame, params, joints, markers=None, score=0.0, evaluations=0, seconds=0.0,
+               info=None):
         """Record one finished frame and make it durable before returning.
 
         Parameters
@@ -261,6 +279,8 @@ class ResultsWriter:
             Candidate poses evaluated for this frame.
         seconds : float
             Wall time spent on this frame.
+        info : dict or None
+            The tracker's JSON-able diagnostics of the frame (kept in ``frames.jsonl``).
         """
         frame = int(frame)
         if frame < 0:
@@ -278,6 +298,8 @@ class ResultsWriter:
             raise ValueError(f"markers must be ({self._n_markers}, 3), got {markers.shape}")
         rec = {"frame": frame, "params": params, "joints": joints, "markers": markers,
                "score": float(score), "evaluations": int(evaluations), "seconds": float(seconds)}
+        if info:
+            rec["info"] = _jsonable(info)
         line = json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v)
                            for k, v in rec.items()}, separators=(",", ":"))
         # One write of the whole line: a crash leaves at most a torn last line, never a mix.
@@ -309,6 +331,12 @@ class ResultsWriter:
         timing = {"frames": n, "seconds": seconds,
                   "fps": n / seconds if seconds > 0 else None,
                   "evaluations": int(arrays["evaluations"].sum())}
+        stages = {}
+        for rec in self._records:
+            for k, v in rec.get("info", {}).get("stage_seconds", {}).items():
+                stages[k] = stages.get(k, 0.0) + float(v)
+        if stages:
+            timing["stage_seconds"] = stages
         _atomic_write_bytes(self.out / TIMING, json.dumps(timing, indent=1).encode())
         return timing
 

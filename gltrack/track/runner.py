@@ -39,7 +39,8 @@ def _load(spec):
 
 def _extend_registry():
     # Trackers beyond plain HC live in optional modules that add themselves when imported.
-    for mod in ("gltrack.track.ep", "gltrack.track.multiview", "gltrack.track.vlmm"):
+    for mod in ("gltrack.track.ep", "gltrack.track.multiview", "gltrack.track.vlmm",
+                "gltrack.track.blobfilter"):
         try:
             importlib.import_module(mod)
         except ModuleNotFoundError as exc:
@@ -50,6 +51,14 @@ def _extend_registry():
 def available_methods() -> dict:
     _extend_registry()
     return dict(METHODS)
+
+
+def options_class(method: str):
+    """The options dataclass of ``method`` (its fields are the method's ``--config`` keys)."""
+    methods = available_methods()
+    if method not in methods:
+        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(methods))}")
+    return _load(methods[method][2])
 
 
 def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
@@ -142,7 +151,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             secs = time.perf_counter() - t0
             p = est.params[None]
             writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
-                          est.score, est.evaluations, secs)
+                          est.score, est.evaluations, secs, info=est.info)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
         timing = writer.finish()
         arrays = writer.arrays()

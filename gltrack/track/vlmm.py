@@ -29,6 +29,7 @@ Other trackers can use the behaviour prior through :func:`vlmm_prior` (see
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 
 import cv2
@@ -36,19 +37,19 @@ import numpy as np
 from scipy.special import logsumexp
 
 from gltrack.motion.behaviour import BehaviourModel
-from gltrack.observe.blobs import BlobModel, fit_blobs, mixture_kl, mixture_loglik
-from gltrack.observe.voxels import carve
 from gltrack.sample.resampling import systematic_resample
 from gltrack.sample.weights import Weights, annealing_exponent
 
 from .base import FrameEstimate, Tracker
+from .blob_evidence import BlobEvidence, placed_candidates, stage_seconds
+from .blobfilter import LOST_KL, inject_failure
 from .runner import register
 
 log = logging.getLogger(__name__)
 
 EVALUATIONS = ("silhouette", "blobs")
 #: Default "lost" thresholds: silhouette XOR pixels per foreground pixel; blob KL in nats.
-LOST_DEFAULT = {"silhouette": 0.8, "blobs": 25.0}
+LOST_DEFAULT = {"silhouette": 0.8, "blobs": LOST_KL}
 
 
 # ------------------------------------------------------------------------------- the prior
@@ -221,18 +222,23 @@ class VlmmOptions:
     tile : silhouette tile side, pixels (power of two)
     volume : tracking volume [xmin, ymin, zmin, xmax, ymax, zmax], metres; empty = 3 m x 3 m
         around the point the cameras look at, from the floor to 2.5 m
-    base, max_depth, tolerance : voxel carving (see ``gltrack.observe.voxels.carve``)
+    base, max_depth, tolerance : voxel reconstruction (max_depth 3 = the paper's depth 7; see
+        :class:`gltrack.track.blob_evidence.BlobEvidence`)
+    segmentation : "masks" (the dataset's foreground masks) or "colour" (the paper's chi-square
+        test of pixel samples against the background frames)
     fit_inits : clusters (by particle support) whose predicted poses initialise the blob fit
     fit_iterations : EM iterations of the blob fit
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
     lost_frames : consecutive bad frames before recovery; 0 disables recovery
+    perturb_frame, perturb_rad, perturb_shift : failure injection for the recovery benchmark
+        (see :func:`gltrack.track.blobfilter.inject_failure`; -1 = never)
     """
 
     model: str = ""
     particles: int = 200
-    evaluation: str = "silhouette"
+    evaluation: str = "blobs"
     lam: float = 0.5
     root_scale: float = 1.0
     other_scale: float = 1.0
@@ -241,25 +247,17 @@ class VlmmOptions:
     tile: int = 64
     volume: list = field(default_factory=list)
     base: int = 16
-    max_depth: int = 2
+    max_depth: int = 3
     tolerance: int = 0
+    segmentation: str = "masks"
     fit_inits: int = 3
     fit_iterations: int = 4
     headings: int = 12
     lost_threshold: float = 0.0
     lost_frames: int = 3
-
-
-def _default_volume(cameras) -> np.ndarray:
-    """3 m x 3 m around the least-squares meeting point of the optical axes, floor to 2.5 m."""
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for c in cameras:
-        d = c.R[2] / np.linalg.norm(c.R[2])
-        M = np.eye(3) - np.outer(d, d)
-        A += M
-        b += M @ c.center
-    p = np.linalg.lstsq(A, b, rcond=None)[0]
-    return np.array([p[0] - 1.5, -0.1, p[2] - 1.5, p[0] + 1.5, 2.5, p[2] + 1.5])
+    perturb_frame: int = -1
+    perturb_rad: float = 1.5
+    perturb_shift: float = 0.5
 
 
 class VlmmTracker(Tracker):
@@ -270,8 +268,8 @@ class VlmmTracker(Tracker):
     def __init__(self, dataset, body, ctx, options: VlmmOptions | None = None, rng=None):
         opt = self.opt = options or VlmmOptions()
         if not opt.model:
-            raise ValueError("method vlmm needs option model = 'PATH.npz' (a behaviour model from "
-                             "gltrack learn) in --config")
+            raise ValueError("method vlmm needs a behaviour model: --behaviour MODEL.npz (or "
+                             "model = 'MODEL.npz' in --config), learnt by gltrack learn")
         if opt.evaluation not in EVALUATIONS:
             raise ValueError(f"option evaluation must be one of {EVALUATIONS}, got "
                              f"{opt.evaluation!r}")
@@ -286,15 +284,13 @@ class VlmmTracker(Tracker):
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
                                root_scale=opt.root_scale, other_scale=opt.other_scale)
-        self.cameras = list(dataset.cameras)
-        if not self.cameras:
-            raise ValueError(f"{dataset.path}: no cameras")
-        self.volume = (np.asarray(opt.volume, dtype=np.float64) if len(opt.volume)
-                       else _default_volume(self.cameras))
-        if self.volume.shape != (6,):
-            raise ValueError(f"option volume must have 6 numbers, got {opt.volume}")
+        # the voxels place the candidates of initialisation and recovery in both evaluations
+        self.evidence = BlobEvidence(dataset, body, volume=opt.volume, base=opt.base,
+                                     max_depth=opt.max_depth, tolerance=opt.tolerance,
+                                     segmentation=opt.segmentation,
+                                     fit_iterations=opt.fit_iterations)
+        self.cameras = self.evidence.cameras
         self.lost_threshold = opt.lost_threshold or LOST_DEFAULT[opt.evaluation]
-        self.blob_model = BlobModel(body.mesh, body.skeleton)
         self.engine = None
         if opt.evaluation == "silhouette":
             from gltrack.render.engine import ScoringEngine
@@ -304,76 +300,44 @@ class VlmmTracker(Tracker):
         self.P = None
         self.est = None
         self._frame = None
-        self._masks = None
-        self._voxels = None
-        self._observed = None
         self._fg_pixels = 1.0
         self._bad = 0
 
     # -- observation ----------------------------------------------------------------------------
     def _load(self, frame):
-        if self._frame == frame:
+        """Set the frame: voxels (lazily) and, for the silhouette evaluation, the GPU masks."""
+        self.evidence.set_frame(frame)
+        if self._frame == frame or self.engine is None:
+            self._frame = frame
             return
-        masks = []
+        self._frame = frame
+        fg_total = 0
+        t = self.opt.tile
         for i, c in enumerate(self.cameras):
             m = self.ds.mask(frame, i)
             if m is None:
                 raise ValueError(f"{self.ds.path}: camera {c.name} has no foreground masks "
-                                 f"(camN_mask); method vlmm needs them")
-            masks.append(m)
-        self._frame, self._masks, self._voxels, self._observed = frame, masks, None, None
-        if self.engine is not None:
-            fg_total = 0
-            t = self.opt.tile
-            for i, (c, m) in enumerate(zip(self.cameras, masks)):
-                block = self.ds.blocking_mask(i)
-                if np.any(c.dist):
-                    m = c.undistort_image(m.astype(np.uint8), cv2.INTER_NEAREST) > 0
-                    block = c.undistort_image(block.astype(np.uint8), cv2.INTER_NEAREST) > 0
-                self.engine.set_masks(i, m, block)
-                small = cv2.resize((m & ~block).astype(np.uint8), (t, t),
-                                   interpolation=cv2.INTER_NEAREST)
-                fg_total += int(small.sum())
-            self._fg_pixels = max(fg_total, 1)
-
-    def voxels(self, frame):
-        """The frame's carved voxels (cached)."""
-        self._load(frame)
-        if self._voxels is None:
-            self._voxels = carve(self.cameras, self._masks, self.volume, base=self.opt.base,
-                                 max_depth=self.opt.max_depth, tolerance=self.opt.tolerance)
-        return self._voxels
-
-    def _voxel_points(self, frame):
-        v = self.voxels(frame)
-        if len(v) == 0:
-            raise ValueError(f"frame {frame}: no voxels carved from the masks inside the "
-                             f"tracking volume {self.volume.tolist()}")
-        return v.points(max_size=0.06)
-
-    def _fit_observation(self, frame, poses):
-        """Blob fit from each pose in ``poses`` (K, D); keeps the most likely (paper sec. 6.3)."""
-        pts, vol = self._voxel_points(frame)
-        init = self.blob_model.blobs(self.body.skinning(poses))
-        best, best_ll = None, -np.inf
-        for i in range(len(poses)):
-            b, ll = fit_blobs(pts, init[i], point_weights=vol,
-                              iterations=self.opt.fit_iterations)
-            if ll > best_ll:
-                best, best_ll = b, ll
-        self._observed = best
-        return best_ll
+                                 f"(camN_mask); evaluation = 'silhouette' needs them")
+            block = self.ds.blocking_mask(i)
+            if np.any(c.dist):
+                m = c.undistort_image(m.astype(np.uint8), cv2.INTER_NEAREST) > 0
+                block = c.undistort_image(block.astype(np.uint8), cv2.INTER_NEAREST) > 0
+            self.engine.set_masks(i, m, block)
+            small = cv2.resize((m & ~block).astype(np.uint8), (t, t),
+                               interpolation=cv2.INTER_NEAREST)
+            fg_total += int(small.sum())
+        self._fg_pixels = max(fg_total, 1)
 
     # -- evaluation ---------------------------------------------------------------------------
     def costs(self, frame, params) -> np.ndarray:
         """(N,) cost of N poses against frame ``frame`` (lower is better)."""
         self._load(frame)
-        S = self.body.skinning(params)
         if self.engine is not None:
+            S = self.body.skinning(params)
             return self.engine.score(S, ["silhouette"])[:, :, 1].sum(axis=1)
-        if self._observed is None:
-            self._fit_observation(frame, np.atleast_2d(params)[:1])
-        return mixture_kl(self.blob_model.blobs(S), self._observed)
+        if self.evidence.observed is None:
+            self.evidence.fit(np.atleast_2d(params)[:1])
+        return self.evidence.costs(params)
 
     def quality(self, best_cost: float) -> float:
         """The frame's fit figure compared with ``lost_threshold`` (lower is better)."""
@@ -389,34 +353,26 @@ class VlmmTracker(Tracker):
     # -- initialisation and recovery ---------------------------------------------------------------
     def candidates(self, frame) -> tuple[np.ndarray, np.ndarray]:
         """Every cluster mean at ``headings`` headings, placed so its volume centroid sits on
-        the carved voxels' centroid.
+        the reconstructed voxels' centroid.
 
         Returns
         -------
         poses : (K * H, D) float64
         clusters : (K * H,) int64
         """
-        pts, vol = self._voxel_points(frame)
-        target = (pts * vol[:, None]).sum(axis=0) / vol.sum()
+        self._load(frame)
         d, g = self.body.dofs, self.model.gmm
         K, H = g.n_components, max(int(self.opt.headings), 1)
-        P = np.repeat(d.zero(self.body.skeleton)[None], K * H, axis=0)
-        k = np.repeat(np.arange(K), H)
-        P[:, self.prior.idx] = g.means[k, :self.model.n_angles]
-        P[:, d.index("pelvis_ry")] = np.tile(2 * np.pi * np.arange(H) / H, K)
-        P = d.validate(P)
-        P[:, :3] += target - self.blob_model.centroid(self.body.skinning(P))
-        return d.validate(P), k
+        proto = np.repeat(d.zero(self.body.skeleton)[None], K, axis=0)
+        proto[:, self.prior.idx] = g.means[:, :self.model.n_angles]
+        return placed_candidates(self.evidence, self.body, proto, H), np.repeat(np.arange(K), H)
 
     def _search(self, frame):
         P, k = self.candidates(frame)
         if self.engine is None:
             # fitting from every candidate is too slow: fit from the few that explain the
             # voxels best before any fitting
-            pts, vol = self._voxel_points(frame)
-            blobs = self.blob_model.blobs(self.body.skinning(P))
-            ll = mixture_loglik(pts, blobs, point_weights=vol)
-            self._fit_observation(frame, P[np.argsort(-ll)[: max(int(self.opt.fit_inits), 1)]])
+            self.evidence.fit(P[self.evidence.rank(P, self.opt.fit_inits)])
         return P, k, self.costs(frame, P)
 
     def auto_init(self, frame):
@@ -445,17 +401,29 @@ class VlmmTracker(Tracker):
     def step(self, frame):
         if self.P is None:
             raise RuntimeError("start() the tracker first")
+        t0 = time.perf_counter()
         self._load(frame)
+        if frame == self.opt.perturb_frame:
+            self.P = inject_failure(self.P, self.body.dofs, self.opt.perturb_rad,
+                                    self.opt.perturb_shift)
+            log.info("frame %d: failure injected", frame)
+        if self.engine is None and self.evidence.empty:
+            # no reconstruction: nothing to weigh against or to recover from
+            return FrameEstimate(self.est.copy(), float("nan"), 0, {
+                "empty": True, "stage_seconds": stage_seconds(self.evidence,
+                                                              time.perf_counter() - t0)})
         P = self.prior.predict(self.P, self.rng)
         evals = 0
         if self.engine is None:
-            self._fit_from_clusters(frame, P)
+            self._fit_from_clusters(P)
         cost = self.costs(frame, P)
         evals += len(P)
         best = int(np.argmin(cost))
         q = self.quality(cost[best])
-        self._bad = self._bad + 1 if q > self.lost_threshold else 0
-        info = {"quality": q, "clusters": int(len(np.unique(self.prior.clusters())))}
+        lost = q > self.lost_threshold
+        self._bad = self._bad + 1 if lost else 0
+        info = {"quality": q, "lost": bool(lost),
+                "clusters": int(len(np.unique(self.prior.clusters())))}
         w = self._weights(cost)
         est = P[best].copy() if self.opt.estimate == "best" else w.mean(P)
         self.est = est
@@ -467,9 +435,10 @@ class VlmmTracker(Tracker):
             evals += self._recover(frame)
             info["recovered"] = True
             self._bad = 0
+        info["stage_seconds"] = stage_seconds(self.evidence, time.perf_counter() - t0)
         return FrameEstimate(est, score, evals, info)
 
-    def _fit_from_clusters(self, frame, P):
+    def _fit_from_clusters(self, P):
         """Blob-fit initialisations: the mean predicted pose of the best-supported clusters."""
         cl = self.prior.clusters()
         ks, counts = np.unique(cl, return_counts=True)
@@ -477,7 +446,7 @@ class VlmmTracker(Tracker):
         poses = np.stack([P[cl == k].mean(axis=0) for k in top])
         if self.est is not None:
             poses = np.concatenate([poses, self.est[None]])
-        self._fit_observation(frame, poses)
+        self.evidence.fit(poses)
 
     def close(self):
         if self.engine is not None:

@@ -1,0 +1,250 @@
+"""The voxel / blob / KL likelihood of Caillette, Galata & Howard (2008, sec. 6), per frame.
+
+One :class:`BlobEvidence` serves every tracker that scores particles the paper's way (``vlmm``
+with ``evaluation = "blobs"``, ``condensation``, ``apf-blobs``), so those methods differ in their
+motion model only:
+
+1. **voxels** - hierarchical shape-from-silhouette reconstruction of the tracking volume,
+   either from the dataset's foreground masks (:func:`gltrack.observe.voxels.carve`,
+   ``segmentation = "masks"``) or by the paper's per-voxel chi-square test of pixel samples
+   against a YUV background model learnt from the dataset's empty-scene frames
+   (:func:`gltrack.observe.colour_carve.carve_colour`, ``segmentation = "colour"``);
+2. **blob fit** - EM of the body-part Gaussian mixture onto the voxels from a few predicted
+   poses; the most likely fit is the frame's image evidence (:meth:`BlobEvidence.fit`), its
+   likelihood a failure signal;
+3. **evaluation** - each particle's part blobs against the evidence by the closed-form KL
+   divergence of eq. 9 (:meth:`BlobEvidence.costs`), vectorised over particles.
+
+Every stage's wall time is accumulated in :attr:`BlobEvidence.seconds` (reset per frame by
+:meth:`BlobEvidence.set_frame`), so the trackers report where time goes.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from contextlib import contextmanager
+
+import numpy as np
+
+from gltrack.observe.blobs import BlobModel, fit_blobs, mixture_kl, mixture_loglik
+from gltrack.observe.voxels import carve
+
+log = logging.getLogger(__name__)
+
+SEGMENTATIONS = ("masks", "colour")
+#: timed stages, keys of :attr:`BlobEvidence.seconds`
+STAGES = ("voxels", "blob_fit", "evaluation")
+
+
+def default_volume(cameras) -> np.ndarray:
+    """(6,) tracking volume: 3 m x 3 m around the least-squares meeting point of the cameras'
+    optical axes, from 0.1 m below the floor to 2.5 m, metres."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for c in cameras:
+        d = c.R[2] / np.linalg.norm(c.R[2])
+        M = np.eye(3) - np.outer(d, d)
+        A += M
+        b += M @ c.center
+    p = np.linalg.lstsq(A, b, rcond=None)[0]
+    return np.array([p[0] - 1.5, -0.1, p[2] - 1.5, p[0] + 1.5, 2.5, p[2] + 1.5])
+
+
+class BlobEvidence:
+    """Per-frame voxel reconstruction, blob fit and KL scoring of a multi-view dataset.
+
+    Parameters
+    ----------
+    dataset : gltrack.data.dataset.Dataset (multiview rig)
+    body : gltrack.body.model.BodyModel
+    volume : (6,) float or empty, tracking volume ``(xmin, ymin, zmin, xmax, ymax, zmax)``,
+        metres; empty = :func:`default_volume`
+    base : int, coarse voxels along the longest side of the volume (the paper's 16)
+    max_depth : int, subdivision levels below the coarse grid (3 = the paper's "depth 7",
+        a 128^3-equivalent finest grid)
+    tolerance : int, cameras allowed to call a voxel background (occlusions, bad masks)
+    segmentation : "masks" (the dataset's camN_mask) or "colour" (chi-square pixel-sample test
+        against a YUV background learnt from the dataset's background frames)
+    fit_iterations : EM iterations of the blob fit
+    point_size : metres; voxels bigger than this are split into points of this size for the
+        fit, so a big interior voxel does not count as a single point
+    """
+
+    def __init__(self, dataset, body, *, volume=(), base: int = 16, max_depth: int = 3,
+                 tolerance: int = 0, segmentation: str = "masks", fit_iterations: int = 4,
+                 point_size: float = 0.06):
+        if segmentation not in SEGMENTATIONS:
+            raise ValueError(f"option segmentation must be one of {SEGMENTATIONS}, got "
+                             f"{segmentation!r}")
+        self.ds, self.body = dataset, body
+        self.cameras = list(dataset.cameras)
+        if not self.cameras:
+            raise ValueError(f"{dataset.path}: no cameras")
+        self.volume = (np.asarray(volume, dtype=np.float64) if len(volume)
+                       else default_volume(self.cameras))
+        if self.volume.shape != (6,) or np.any(self.volume[3:] <= self.volume[:3]):
+            raise ValueError(f"option volume must be [xmin, ymin, zmin, xmax, ymax, zmax] with "
+                             f"max > min, got {list(volume)}")
+        self.base, self.max_depth, self.tolerance = int(base), int(max_depth), int(tolerance)
+        self.segmentation = segmentation
+        self.fit_iterations = int(fit_iterations)
+        self.point_size = float(point_size)
+        self.model = BlobModel(body.mesh, body.skeleton)
+        self._backgrounds = None
+        self.frame = None
+        self.voxels = None
+        self.observed = None
+        self._previous = None
+        self.fit_loglik = -np.inf
+        self._points = None
+        self.seconds = dict.fromkeys(STAGES, 0.0)
+
+    @contextmanager
+    def _timed(self, stage):
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] += time.perf_counter() - t
+
+    # -- reconstruction -------------------------------------------------------------------
+    def _background_models(self):
+        from gltrack.observe.colour_carve import YuvBackground
+
+        if self._backgrounds is None:
+            models = []
+            for i, c in enumerate(self.cameras):
+                frames = self.ds.backgrounds(i)
+                if not frames:
+                    raise ValueError(f"{self.ds.path}: camera {c.name} has no background frames "
+                                     "(camN_background); segmentation = 'colour' needs them")
+                models.append(YuvBackground.fit(frames))
+            self._backgrounds = models
+        return self._backgrounds
+
+    def _carve(self, frame):
+        if self.segmentation == "colour":
+            from gltrack.observe.colour_carve import carve_colour
+
+            images = [self.ds.colour(frame, i) for i in range(len(self.cameras))]
+            return carve_colour(self.cameras, images, self._background_models(), self.volume,
+                                base=self.base, max_depth=self.max_depth,
+                                tolerance=self.tolerance)
+        masks = []
+        for i, c in enumerate(self.cameras):
+            m = self.ds.mask(frame, i)
+            if m is None:
+                raise ValueError(f"{self.ds.path}: camera {c.name} has no foreground masks "
+                                 "(camN_mask); use segmentation = 'colour'")
+            masks.append(np.asarray(m, bool))
+        return carve(self.cameras, masks, self.volume, base=self.base,
+                     max_depth=self.max_depth, tolerance=self.tolerance)
+
+    def set_frame(self, frame: int) -> None:
+        """Reconstruct ``frame``'s voxels (timed as ``voxels``); resets the stage timers."""
+        if self.frame == frame:
+            return
+        self.seconds = dict.fromkeys(STAGES, 0.0)
+        with self._timed("voxels"):
+            self.voxels = self._carve(frame)
+            self._points = self.voxels.points(max_size=self.point_size) if len(self.voxels) \
+                else None
+        self._previous = self.observed
+        self.frame, self.observed, self.fit_loglik = frame, None, -np.inf
+        if self._points is None:
+            log.warning("frame %d: no voxels reconstructed inside the tracking volume %s",
+                        frame, self.volume.round(2).tolist())
+
+    @property
+    def empty(self) -> bool:
+        """True when the current frame's reconstruction has no voxels."""
+        return self._points is None
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current frame's voxel points (M, 3) metres and their volumes (M,) m^3."""
+        if self._points is None:
+            raise ValueError(f"frame {self.frame}: no voxels reconstructed inside the tracking "
+                             f"volume {self.volume.round(2).tolist()}")
+        return self._points
+
+    def centroid(self) -> np.ndarray:
+        """(3,) volume-weighted centre of the current frame's voxels, metres."""
+        pts, vol = self.points()
+        return (pts * vol[:, None]).sum(axis=0) / vol.sum()
+
+    # -- evidence ---------------------------------------------------------------------------
+    def blobs(self, params):
+        """Part blobs (N, P) of N poses (N, D)."""
+        return self.model.blobs(self.body.skinning(np.atleast_2d(params)))
+
+    def rank(self, params, keep: int) -> np.ndarray:
+        """Indices of the ``keep`` poses (N, D) whose unfitted blobs explain the voxels best
+        (cheap pre-selection before fitting from many candidates)."""
+        pts, vol = self.points()
+        with self._timed("blob_fit"):
+            ll = mixture_loglik(pts, self.blobs(params), point_weights=vol)
+        return np.argsort(-np.atleast_1d(ll))[: max(int(keep), 1)]
+
+    def fit(self, init_poses) -> float:
+        """Fit the blobs from each of K poses (K, D) and keep the most likely as the evidence.
+
+        Returns the kept fit's mean log-likelihood per unit volume (nats); ``-inf`` when the
+        frame has no voxels (the evidence is then left unset and :meth:`costs` raises).
+        """
+        if self._points is None:
+            self.observed, self.fit_loglik = None, -np.inf
+            return -np.inf
+        pts, vol = self._points
+        with self._timed("blob_fit"):
+            init = self.blobs(init_poses)
+            starts = [init[i] for i in range(init.means.shape[0])]
+            if self._previous is not None:
+                # last frame's evidence moved with the data, not with the particles: a start
+                # that does not inherit the tracker's own errors
+                starts.append(self._previous)
+            best, best_ll = None, -np.inf
+            for start in starts:
+                b, ll = fit_blobs(pts, start, point_weights=vol, iterations=self.fit_iterations)
+                if ll > best_ll:
+                    best, best_ll = b, ll
+        self.observed, self.fit_loglik = best, float(best_ll)
+        return self.fit_loglik
+
+    def costs(self, params) -> np.ndarray:
+        """(N,) KL divergence (nats) of N poses' blobs from the fitted evidence (eq. 9)."""
+        if self.observed is None:
+            raise ValueError(f"frame {self.frame}: no blob evidence fitted (empty "
+                             "reconstruction?)")
+        with self._timed("evaluation"):
+            return mixture_kl(self.blobs(params), self.observed)
+
+
+def stage_seconds(evidence: BlobEvidence, total: float) -> dict:
+    """The frame's wall time split into ``voxels``, ``blob_fit`` and ``particle_filter`` (the
+    rest: prediction, KL evaluation - also given alone as ``evaluation`` - and resampling)."""
+    s = dict(evidence.seconds)
+    s["particle_filter"] = max(total - s["voxels"] - s["blob_fit"], 0.0)
+    return s
+
+
+def placed_candidates(evidence: BlobEvidence, body, prototypes, headings: int) -> np.ndarray:
+    """Prototype poses at ``headings`` headings, each moved so its volume centroid sits on the
+    centroid of the current frame's voxels (automatic initialisation and recovery, sec. 6.3).
+
+    Parameters
+    ----------
+    evidence : BlobEvidence with the frame set
+    body : BodyModel
+    prototypes : (K, D) float, poses whose root translation and heading are replaced
+    headings : int >= 1, headings spread evenly over a full turn
+
+    Returns
+    -------
+    (K * H, D) float64, prototype k at heading h in row ``k * H + h``.
+    """
+    d = body.dofs
+    H = max(int(headings), 1)
+    P = np.repeat(d.validate(prototypes), H, axis=0)
+    P[:, d.index("pelvis_ry")] = np.tile(2 * np.pi * np.arange(H) / H, len(prototypes))
+    P = d.validate(P)
+    P[:, :3] += evidence.centroid() - evidence.model.centroid(body.skinning(P))
+    return d.validate(P)
