@@ -88,3 +88,28 @@ def test_learn_on_cmu_walk(shared, tmp_path, capsys):
     assert main(["learn", "--motion", str(clip), "--out", str(tmp_path / "w.npz")]) == 0
     rep = BehaviourModel.load(tmp_path / "w.npz").report()
     assert rep["n_clusters"] >= 2 and rep["train_entropy"] < rep["heldout_entropy"] + 1.0
+
+
+def test_memory_sweep(clip, tmp_path, capsys):
+    """The sweep's row at the model's own memory reproduces the model's entropies; longer
+    memories never fit the training labels worse and never have fewer states."""
+    out = tmp_path / "m.npz"
+    rc = main(["learn", "--motion", str(clip), "--out", str(out), "--max-memory", "4",
+               "--heldout", "0.25", "--sweep-memory", "0:6"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "entropy against maximal memory" in text
+    m = BehaviourModel.load(out)
+    _, dofs, params, _ = load_motion(clip, "25", fps=30.0)
+    cut = int(round(len(params) * 0.75))
+    rows = m.memory_sweep(params[:cut], [params[cut:]], range(0, 7))
+    own = rows[4]
+    rep = m.report()
+    assert own["n_states"] == rep["n_states"]
+    assert own["train_entropy"] == pytest.approx(rep["train_entropy"], rel=1e-9)
+    assert own["heldout_entropy"] == pytest.approx(rep["heldout_entropy"], rel=1e-9)
+    tr = [r["train_entropy"] for r in rows]
+    st = [r["n_states"] for r in rows]
+    assert all(b <= a + 1e-9 for a, b in zip(tr, tr[1:])), tr
+    assert st == sorted(st) and st[0] == 1 and st[-1] > 1
+    assert f"{rows[6]['n_states']:7d}" in text
+    assert main(["learn", "--motion", str(clip), "--out", str(out), "--sweep-memory", "3"]) == 2

@@ -1,21 +1,23 @@
-"""Behaviour prior vs Gaussian diffusion: evaluations needed for a given accuracy (Caillette 2008).
+"""``gltrack bench vlmm``: the behaviour-model tracker of Caillette, Galata & Howard (2008).
 
-The paper reports that its VLMM prediction keeps accuracy with 25 times fewer particle
-evaluations than Condensation. This bench measures the same trade-off here:
+1. Learn a behaviour model (Figueiredo-Jain clusters + VLMM) from the first 60 % of a CMU clip
+   (``../shared/mocap``, the salsa, retargeted to the 25-DOF body at 30 frames/s); report the
+   model entropy (eq. 2) on training and held-out frames against the VLMM's maximal memory
+   (:meth:`gltrack.motion.behaviour.BehaviourModel.memory_sweep`).
+2. Synthesise the unseen later part as a multi-view dataset with the sensor simulator (four
+   colour cameras, cluttered room, MOG2 masks).
+3. Track it from the true first pose, through the CLI's runner, with the three methods that share
+   the voxel / blob / KL likelihood: ``condensation`` (5000 particles), ``apf-blobs`` (1000 x 5
+   layers) and ``vlmm`` (200 and 1000 particles): RMS joint position error over time, frames per
+   second and the time of each stage (voxels at depth 7, blob fit, particle filter).
+4. The VLMM prior driving the multi-view tracker's GPU silhouette likelihood (``sir --prior
+   vlmm``, 200 particles) against HPS with 800.
+5. Recovery: at tracked frame :data:`FAIL_AT` the particle set is turned by 1.5 rad and moved by
+   0.5 m (:func:`gltrack.track.blobfilter.inject_failure`); frames until the RMS joint error is
+   back under :data:`RECOVERED_M`, for ``vlmm`` (automatic recovery) and ``condensation``.
 
-1. learn a behaviour model from the first part of a CMU clip (``../shared/mocap``);
-2. synthesise a held-out later part of the clip as a multi-view sequence with the sensor
-   simulator (:func:`gltrack.data.simulate.synthesize_in_subprocess`, four colour cameras,
-   cluttered room, MOG2 background-subtraction masks: ``data="simulate"``, the default), or,
-   where the simulator is unavailable (``data="render"``), as clean foreground masks of the
-   skinned body from four ring cameras (CPU reference rasteriser);
-3. track it with the same particle filter (GPU silhouette cost, SIR, best particle) using either
-   plain Gaussian diffusion (per-DOF sigmas of :mod:`gltrack.body.dofs`) or the VLMM prior
-   (:class:`gltrack.track.vlmm.VlmmPrior`), at several particle counts, from the true first pose;
-4. report the mean joint error of each run, the evaluations each method needs to reach a target
-   error, and the errors at equal evaluations.
-
-The synthetic-data helpers here are also used by the tests.
+``--quick`` uses 20 frames and smaller particle counts. The synthetic-data helpers at the top are
+also used by the tests.
 """
 from __future__ import annotations
 
@@ -97,210 +99,221 @@ def periodic_motion(body, n: int, fps: float = 30.0, phase: float = 0.0,
 
 
 # ------------------------------------------------------------------------------ the bench
-def run_filter(body, engine, gt_joints, start, n, rng, prior=None, survival=0.3):
-    """Track with SIR on the engine's silhouette cost (masks already uploaded per frame by
-    ``engine_frames``); returns (mean joint error m, per-frame errors, evaluations)."""
-    from gltrack.sample.diffusion import StateSpace, diffuse
-    from gltrack.sample.resampling import systematic_resample
-    from gltrack.sample.weights import Weights, annealing_exponent
-
-    d = body.dofs
-    P = np.repeat(d.validate(start), n, axis=0)
-    space = StateSpace.from_dofs(d, engine.fps)
-    if prior is not None:
-        prior.reset(P, rng)
-    errs, evals = [], 0
-    for f in range(len(gt_joints)):
-        engine.upload(f)
-        P = prior.predict(P, rng) if prior is not None else diffuse(P, rng, space)
-        cost = engine.score(body.skinning(P), ["silhouette"])[:, :, 1].sum(axis=1)
-        evals += len(P)
-        best = int(np.argmin(cost))
-        errs.append(float(np.linalg.norm(body.joints(P[best:best + 1])[0] - gt_joints[f],
-                                         axis=1).mean()))
-        lw = -(cost - cost.min())
-        w = Weights(annealing_exponent(lw, survival) * lw)
-        idx = systematic_resample(w.W, rng, len(P))
-        P = P[idx]
-        if prior is not None:
-            prior.select(idx)
-    return float(np.mean(errs)), errs, evals
+#: (label, method, options) of the blob-likelihood comparison, full and quick
+BLOB_RUNS = {
+    False: [("condensation_5000", "condensation", {"particles": 5000}),
+            ("apf_1000x5", "apf-blobs", {"particles": 1000, "layers": 5}),
+            ("vlmm_200", "vlmm", {"particles": 200}),
+            ("vlmm_1000", "vlmm", {"particles": 1000})],
+    True: [("condensation_1000", "condensation", {"particles": 1000}),
+           ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5}),
+           ("vlmm_200", "vlmm", {"particles": 200})],
+}
+#: the behaviour prior on the GPU silhouette likelihood of the multi-view tracker, against HPS
+SILHOUETTE_RUNS = {
+    False: [("sir_vlmm_prior_200", "sir", {"particles": 200, "prior": "vlmm"}),
+            ("hps_800", "hps", {"particles": 800})],
+    True: [("sir_vlmm_prior_100", "sir", {"particles": 100, "prior": "vlmm"}),
+           ("hps_200", "hps", {"particles": 200})],
+}
+#: failure injected at this tracked frame in the recovery runs
+FAIL_AT = 10
+RECOVERED_M = 0.1
+TARGET_FPS = 10.0
 
 
-class _Frames:
-    """A scoring engine with per-frame mask upload (the bench's observation)."""
+def rms_joint_error(res, gt) -> np.ndarray:
+    """(N,) root-mean-square joint position error of each result frame, metres (the joints of
+    :data:`gltrack.eval.metrics.EVAL_JOINTS` present on both sides)."""
+    from gltrack.eval.metrics import EVAL_JOINTS, common_names
 
-    def __init__(self, ctx, body, cameras, masks, fps, tile):
-        from gltrack.render.engine import ScoringEngine
-
-        self.e = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, cameras, tile=tile)
-        self.masks, self.fps, self.cur = masks, fps, None
-
-    def upload(self, f):
-        if self.cur != f:
-            for c, m in enumerate(self.masks[f]):
-                self.e.set_masks(c, m)
-            self.cur = f
-
-    def score(self, S, ch):
-        return self.e.score(S, ch)
-
-    def release(self):
-        self.e.release()
+    _, ip, ig = common_names(res["joint_names"], gt["joint_names"], EVAL_JOINTS)
+    frame = np.asarray(res.get("frame", np.arange(len(res["joints"]))), dtype=np.int64)
+    d = np.asarray(res["joints"])[:, ip] - np.asarray(gt["joints"])[frame][:, ig]
+    return np.sqrt(np.mean(np.sum(d * d, axis=-1), axis=1))
 
 
-def _evals_to_reach(runs, target):
-    """Fewest evaluations per frame whose mean error (over seeds) is <= target, else None."""
-    ok = [r["particles"] for r in runs if r["mean_error_m"] <= target]
-    return min(ok) if ok else None
-
-
-def simulated_observation(params, skeleton, dofs, fps, out, seed: int = 0):
-    """Synthesise ``params`` (T, D) with the multi-view sensor simulator into ``out``.
-
-    Returns
-    -------
-    cameras : list of 4 undistorted colour Camera
-    masks : list over frames of lists over cameras of (H, W) bool background-subtraction masks
-        (undistorted with nearest neighbour)
-    params : (T, D) float64, the ground-truth parameters as the body was posed (clamped)
-    """
-    import cv2
-
+def _track_run(ds, method, opts, out, seed):
+    """Track ``ds`` with ``method`` into ``out``; returns (row dict, per-frame RMS errors)."""
     from gltrack.data.dataset import Dataset
-    from gltrack.data.simulate import synthesize_in_subprocess
+    from gltrack.data.results import load_results
+    from gltrack.eval.metrics import evaluate
+    from gltrack.track.runner import track
 
-    path = synthesize_in_subprocess(params, skeleton, dofs, fps, "multiview", str(out), seed=seed,
-                                    progress=False, overwrite=True, lod=0)
-    ds = Dataset.open(path)
-    try:
-        cams = list(ds.cameras)
-        masks = []
-        for f in range(ds.frames):
-            row = []
-            for i, c in enumerate(cams):
-                m = ds.mask(f, i)
-                if m is None:
-                    raise ValueError(f"{path}: camera {c.name} has no masks")
-                if np.any(c.dist):
-                    m = c.undistort_image(m.astype(np.uint8), cv2.INTER_NEAREST) > 0
-                row.append(np.asarray(m, bool))
-            masks.append(row)
-        gt = np.asarray(ds.groundtruth()["params"], dtype=np.float64)
-    finally:
-        ds.close()
-    return [c.undistorted() for c in cams], masks, gt
+    t0 = time.perf_counter()
+    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, seed=seed)
+    wall = time.perf_counter() - t0
+    res = load_results(out)
+    with Dataset.open(ds) as d:
+        gt = d.groundtruth()
+    m = evaluate(res, gt)
+    rms = rms_joint_error(res, gt)
+    frames = int(timing["frames"])
+    row = {"method": method, "options": {k: v for k, v in opts.items() if k != "model"},
+           "rms_joint_error_m": float(rms.mean()),
+           "mean_joint_error_mm": float(m["mean_joint_error_mm"]),
+           "marker_mean_m": float(m["marker_mean_m"]),
+           "evaluations_per_frame": timing["evaluations"] / max(frames, 1),
+           "fps": float(timing.get("fps") or frames / max(wall, 1e-9)),
+           "rms_over_time_m": [round(float(e), 4) for e in rms]}
+    stages = timing.get("stage_seconds")
+    if stages:
+        row["stage_seconds_per_frame"] = {k: v / max(frames, 1) for k, v in stages.items()}
+    return row, rms
 
 
-def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, data: str = "simulate") -> dict:
-    """Measure the VLMM prior against Gaussian diffusion (see module docstring).
+def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
+    """The measurements of Caillette et al.'s behaviour-model tracker (see module docstring).
 
     Parameters
     ----------
-    quick : bool, shorter sequence, fewer particle counts and seeds (noisier)
-    seed : int
+    quick : bool, shorter sequence, fewer particles (noisier; not the issue's figures)
+    seed : int, seeds the clustering, the simulator and the trackers
     shared : path of the shared reference folder (default: GLTRACK_SHARED or ../shared)
-    data : "simulate" (sensor simulator, falls back to "render" when pyrender is missing) or
-        "render" (clean silhouettes from the CPU reference rasteriser)
 
     Returns
     -------
-    dict (JSON-able) with the model report, the per-run errors and the summary.
+    dict (JSON-able): ``model`` (the behaviour model's report), ``entropy_vs_memory``, ``blobs``
+    (one row per blob-likelihood run: RMS joint error mean and over time, fps, stage times),
+    ``silhouette`` (the VLMM prior on the GPU silhouette likelihood vs HPS), ``recovery``,
+    ``targets``.
 
     Raises
     ------
-    FileNotFoundError when the CMU clip is absent.
+    FileNotFoundError when the CMU clip is absent; RuntimeError when the simulator is missing.
     """
-    from gltrack.body.model import BodyModel
-    from gltrack.gl.context import shared_context
+    import importlib.util
+    import tempfile
+
+    from gltrack.data.simulate import synthesize_in_subprocess
     from gltrack.motion.behaviour import BehaviourModel
     from gltrack.motion.retarget import load_motion
-    from gltrack.track.vlmm import VlmmPrior
 
     from . import machine_name, shared_dir
 
-    if data not in ("simulate", "render"):
-        raise ValueError(f"data must be 'simulate' or 'render', got {data!r}")
     root = Path(shared) if shared else shared_dir()
     clip = root / CLIP if root else None
     if clip is None or not clip.is_file():
         raise FileNotFoundError(f"bench vlmm needs {CLIP} in the shared folder "
                                 "(GLTRACK_SHARED or ../shared)")
+    # Only look for pyrender: importing it here would pin PyOpenGL's platform in this
+    # process, which holds a moderngl context (the simulator runs in a spawn child).
+    if importlib.util.find_spec("pyrender") is None:
+        raise RuntimeError("bench vlmm synthesises its test sequence with the sensor simulator, "
+                           "which needs pyrender (pip install pyrender)")
     fps = 30.0
     sk, dofs, params, _ = load_motion(clip, "25", fps=fps)
     cut = int(0.6 * len(params))
-    train, test = params[:cut], params[cut:]
-    n_frames = min(len(test), 15 if quick else 30)
-    test = test[:n_frames]
-    rng = np.random.default_rng(seed)
+    train, later = params[:cut], params[cut:]
+    n_frames = min(len(later), 20 if quick else 60)
+    test = later[:n_frames]
     t0 = time.perf_counter()
-    model = BehaviourModel.fit(train, fps, rng, holdout=0.0, dof_names=dofs.names[6:])
+    model = BehaviourModel.fit(train, fps, np.random.default_rng(seed), held_out=[later],
+                               dof_names=dofs.names[6:])
     learn_s = time.perf_counter() - t0
-    body = BodyModel.build(sk, "25", lod=0)
-    if data == "simulate":
-        import importlib.util
-
-        # Only look for pyrender: importing it here would pin PyOpenGL's platform in this
-        # process, which holds a moderngl context (the simulator runs in a spawn child).
-        if importlib.util.find_spec("pyrender") is None:
-            log.warning("sensor simulator unavailable (no pyrender): rendering clean masks")
-            data = "render"
-    if data == "simulate":
-        import tempfile
-
+    memories = [1, 2, 3, 5, 8, 12, 20, 30] if quick else list(range(1, 31))
+    sweep = model.memory_sweep(train, [later], memories)
+    out = {"machine": machine_name(), "clip": CLIP, "fps": fps, "train_frames": int(cut),
+           "test_frames": int(n_frames), "test_first_frame": int(cut), "seed": seed,
+           "quick": bool(quick), "learn_seconds": learn_s, "model": model.report(),
+           "entropy_vs_memory": sweep, "blobs": {}, "silhouette": {}, "recovery": {}}
+    with tempfile.TemporaryDirectory(prefix="gltrack-bench-vlmm-") as tmp:
+        tmp = Path(tmp)
+        model_path = tmp / "model.npz"
+        model.save(model_path)
         t0 = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="gltrack-bench-vlmm-") as tmp:
-            cams, masks, test = simulated_observation(test, sk, dofs, fps, Path(tmp) / "ds", seed)
-        log.info("simulated %d frames in %.1f s", len(test), time.perf_counter() - t0)
-    else:
-        cams = ring_cameras(test[:, :3].mean(axis=0) + np.array([0.0, -0.1, 0.0]))
-        masks = render_masks(body, test, cams)
-    gt = body.joints(test)
-    counts_vlmm = [25, 50, 100] if quick else [25, 50, 100, 200]
-    counts_diff = [50, 200, 800] if quick else [50, 100, 200, 400, 800, 1600]
-    seeds = [seed] if quick else [seed, seed + 1]
-    ctx = shared_context()
-    eng = _Frames(ctx, body, cams, masks, fps, tile=TILE)
-    runs = {"vlmm": [], "diffusion": []}
-    try:
-        for name, counts in (("vlmm", counts_vlmm), ("diffusion", counts_diff)):
-            for n in counts:
-                errs, secs = [], 0.0
-                for s in seeds:
-                    r = np.random.default_rng(1000 + s)
-                    prior = VlmmPrior(model, dofs, fps) if name == "vlmm" else None
-                    t = time.perf_counter()
-                    e, _, ev = run_filter(body, eng, gt, test[0], n, r, prior)
-                    secs += time.perf_counter() - t
-                    errs.append(e)
-                runs[name].append({"particles": n, "evaluations_per_frame": n,
-                                   "mean_error_m": float(np.mean(errs)),
-                                   "errors_per_seed_m": errs,
-                                   "seconds_per_frame": secs / (len(seeds) * n_frames)})
-                log.info("%s N=%d: %.4f m", name, n, np.mean(errs))
-    finally:
-        eng.release()
-    best_vlmm = min(r["mean_error_m"] for r in runs["vlmm"])
-    best_diff = min(r["mean_error_m"] for r in runs["diffusion"])
-    targets = sorted({round(best_vlmm * 1.25, 4), round(max(best_vlmm, best_diff) * 1.1, 4)})
-    reach = []
-    for tgt in targets:
-        a, b = _evals_to_reach(runs["vlmm"], tgt), _evals_to_reach(runs["diffusion"], tgt)
-        reach.append({"target_error_m": tgt, "vlmm_evaluations_per_frame": a,
-                      "diffusion_evaluations_per_frame": b,
-                      "ratio": (b / a) if a and b else None})
-    equal = []
-    by_n = {r["particles"]: r["mean_error_m"] for r in runs["diffusion"]}
-    for r in runs["vlmm"]:
-        if r["particles"] in by_n:
-            equal.append({"evaluations_per_frame": r["particles"],
-                          "vlmm_error_m": r["mean_error_m"],
-                          "diffusion_error_m": by_n[r["particles"]]})
-    return {"machine": machine_name(), "clip": CLIP, "data": data, "fps": fps,
-            "train_frames": int(cut),
-            "test_frames": int(n_frames), "cameras": len(cams), "tile": TILE,
-            "fixed_pose_error_m": float(np.linalg.norm(gt - gt[:1], axis=2).mean()), "seeds": seeds,
-            "learn_seconds": learn_s, "model": model.report(), "runs": runs,
-            "evaluations_to_reach": reach, "equal_evaluations": equal,
-            "note": "a ratio of None means one method never reached the target error at the "
-                    "particle counts tried"}
+        ds = synthesize_in_subprocess(test, sk, dofs, fps, "multiview", str(tmp / "ds"),
+                                      seed=seed, progress=False, overwrite=True, lod=0)
+        log.info("simulated %d frames in %.1f s", n_frames, time.perf_counter() - t0)
+        for group, runs in (("blobs", BLOB_RUNS[quick]), ("silhouette", SILHOUETTE_RUNS[quick])):
+            for label, method, opts in runs:
+                opts = dict(opts)
+                if method == "vlmm":
+                    opts["model"] = str(model_path)
+                elif opts.get("prior") == "vlmm":
+                    opts["prior_model"] = str(model_path)
+                row, _ = _track_run(ds, method, opts, tmp / label, seed)
+                out[group][label] = row
+                log.info("%s: RMS %.1f mm, %.2f fps", label, 1000 * row["rms_joint_error_m"],
+                         row["fps"])
+        rec_runs = [("vlmm_200", "vlmm", {"particles": 200, "model": str(model_path)}),
+                    (BLOB_RUNS[quick][0][0], "condensation",
+                     dict(BLOB_RUNS[quick][0][2]))]
+        for label, method, opts in rec_runs:
+            opts["perturb_frame"] = FAIL_AT
+            row, rms = _track_run(ds, method, opts, tmp / f"recovery_{label}", seed)
+            after = rms[FAIL_AT:]
+            ok = np.nonzero(after < RECOVERED_M)[0]
+            out["recovery"][label] = {
+                "failure_at_frame": FAIL_AT,
+                "rms_at_failure_m": float(after[0]) if len(after) else None,
+                "frames_to_recover": int(ok[0]) if len(ok) else None,
+                "frames_observed": int(len(after)), "threshold_m": RECOVERED_M,
+                "rms_over_time_m": row["rms_over_time_m"]}
+    out["targets"] = _vlmm_targets(out, quick)
+    return out
+
+
+def _vlmm_targets(out: dict, quick: bool) -> dict:
+    """The issue's targets evaluated on the measured rows (None where a run is missing)."""
+    b = out["blobs"]
+    v200 = b.get("vlmm_200", {}).get("rms_joint_error_m")
+    others = {k: r["rms_joint_error_m"] for k, r in b.items() if not k.startswith("vlmm")}
+    v1000 = b.get("vlmm_1000")
+    loop_fps = None
+    if v1000 and "stage_seconds_per_frame" in v1000:
+        loop_fps = v1000["fps"]
+    rec = out["recovery"].get("vlmm_200", {}).get("frames_to_recover")
+    return {
+        "vlmm_200_beats_baselines": (None if v200 is None or not others
+                                     else bool(all(v200 < e for e in others.values()))),
+        "loop_fps_1000_particles": loop_fps,
+        "loop_fps_target": TARGET_FPS,
+        "loop_fps_met": None if loop_fps is None else bool(loop_fps >= TARGET_FPS),
+        "recovery_frames": rec,
+        "recovery_within_30": None if rec is None and not out["recovery"] else
+        bool(rec is not None and rec <= 30),
+        "note": "quick run: smaller particle counts than the issue's" if quick else "",
+    }
+
+
+def format_table(res: dict) -> str:
+    """The bench's figures as text tables."""
+    m = res["model"]
+    lines = [f"bench vlmm on {res['machine']}: {res['clip']}, train {res['train_frames']} frames, "
+             f"test {res['test_frames']} unseen frames from {res['test_first_frame']} at "
+             f"{res['fps']:g} fps",
+             f"model: {m['n_clusters']} clusters, {m['n_states']} VLMM states, entropy train "
+             f"{m['train_entropy']:.3f} / held-out {m['heldout_entropy']:.3f} bits/frame "
+             f"(learnt in {res['learn_seconds']:.1f} s)", "",
+             f"{'run':22s} {'RMS mm':>7s} {'joint mm':>8s} {'evals/f':>8s} {'fps':>6s} "
+             f"{'voxels':>7s} {'fit':>7s} {'filter':>7s}  (stage seconds per frame)"]
+    for group in ("blobs", "silhouette"):
+        for label, r in res[group].items():
+            st = r.get("stage_seconds_per_frame", {})
+            cells = [f"{st[k]:7.3f}" if k in st else f"{'-':>7s}"
+                     for k in ("voxels", "blob_fit", "particle_filter")]
+            lines.append(f"{label:22s} {1000 * r['rms_joint_error_m']:7.1f} "
+                         f"{r['mean_joint_error_mm']:8.1f} {r['evaluations_per_frame']:8.0f} "
+                         f"{r['fps']:6.2f} " + " ".join(cells))
+    lines += ["", "entropy vs maximal memory (bits/frame):",
+              f"{'memory':>6s} {'states':>7s} {'train':>7s} {'held-out':>8s}"]
+    for e in res["entropy_vs_memory"]:
+        ho = e["heldout_entropy"]
+        lines.append(f"{e['max_memory']:6d} {e['n_states']:7d} {e['train_entropy']:7.3f} "
+                     f"{'-' if ho is None else f'{ho:8.3f}':>8s}")
+    lines.append("")
+    for label, r in res["recovery"].items():
+        n = r["frames_to_recover"]
+        lines.append(f"recovery {label}: failure at frame {r['failure_at_frame']} (RMS "
+                     f"{1000 * (r['rms_at_failure_m'] or 0):.0f} mm), "
+                     + (f"back under {1000 * r['threshold_m']:.0f} mm after {n} frames"
+                        if n is not None else
+                        f"not back under {1000 * r['threshold_m']:.0f} mm within "
+                        f"{r['frames_observed']} frames"))
+    t = res["targets"]
+    lines += ["", f"targets: vlmm 200 beats the baselines: {t['vlmm_200_beats_baselines']}; "
+              f"loop fps with 1000 particles: {t['loop_fps_1000_particles']} (target "
+              f"{t['loop_fps_target']:g}); recovery within 30 frames: {t['recovery_within_30']}"
+              + (f"  [{t['note']}]" if t["note"] else "")]
+    return "\n".join(lines)

@@ -39,6 +39,9 @@ def add_arguments(p):
     p.add_argument("--min-count", type=int, default=3,
                    help="fewest occurrences of a context for the VLMM to consider it")
     p.add_argument("--seed", type=int, default=0, help="random seed of the clustering")
+    p.add_argument("--sweep-memory", metavar="A:B",
+                   help="also print the training and held-out entropy of VLMMs with maximal "
+                        "memory A..B over the learnt clusters (to pick --max-memory)")
 
 
 def _check(args, usage_error):
@@ -55,6 +58,15 @@ def _check(args, usage_error):
         raise usage_error(f"--heldout must be in [0, 1), got {args.heldout}")
     if args.k_max < 1 or args.min_count < 1:
         raise usage_error("--k-max and --min-count must be >= 1")
+    if args.sweep_memory is not None:
+        try:
+            a, b = (int(v) for v in args.sweep_memory.split(":"))
+        except ValueError:
+            raise usage_error(f"--sweep-memory must look like A:B, got {args.sweep_memory!r}") \
+                from None
+        if not 0 <= a <= b:
+            raise usage_error(f"--sweep-memory needs 0 <= A <= B, got {args.sweep_memory!r}")
+        args.sweep_range = range(a, b + 1)
     out = Path(args.out)
     if out.is_dir():
         raise usage_error(f"--out: {out} is a folder, expected a file name")
@@ -110,5 +122,29 @@ def run(args):
     model.info["clips"] = [str(p) for p, _ in clips]
     model.save(args.out)
     print(format_report(model.report(), clips))
+    if args.sweep_memory is not None:
+        train, held = _split(seqs, args.heldout)
+        print(format_sweep(model.memory_sweep(train, held, args.sweep_range,
+                                              augment=not args.no_augment)))
     print(f"wrote {args.out}")
     return 0
+
+
+def _split(seqs, heldout):
+    """The training and held-out parts of each sequence, as :meth:`BehaviourModel.fit` cuts."""
+    if heldout <= 0:
+        return seqs, []
+    cuts = [int(round(len(s) * (1.0 - heldout))) for s in seqs]
+    return [s[:c] for s, c in zip(seqs, cuts)], [s[c:] for s, c in zip(seqs, cuts)]
+
+
+def format_sweep(rows) -> str:
+    """Lines of :meth:`BehaviourModel.memory_sweep`: memory, states, entropies (bits/frame)."""
+    lines = ["entropy against maximal memory (bits/frame; pick the memory after which the "
+             "held-out entropy stops falling):", f"{'memory':>8s} {'states':>7s} {'train':>7s} "
+             f"{'held-out':>8s}"]
+    for r in rows:
+        ho = r["heldout_entropy"]
+        lines.append(f"{r['max_memory']:8d} {r['n_states']:7d} {r['train_entropy']:7.3f} "
+                     + ("       -" if ho is None else f"{ho:8.3f}"))
+    return "\n".join(lines)

@@ -150,6 +150,42 @@ class BehaviourModel:
         log.info("behaviour model: %s", model.report())
         return model
 
+    def memory_sweep(self, train, held_out, memories, *, augment: bool = True,
+                     speeds=(0.9, 1.0, 1.1), smoothing=(0.0, 1.0, 2.0)) -> list[dict]:
+        """Model entropy against the VLMM's maximal memory, over this model's clusters.
+
+        For each memory length a VLMM is learnt from the training label sequences with this
+        model's ``epsilon``, ``min_count`` and ``gamma``, and its entropy (eq. 2, bits per
+        frame) is measured on the training and the held-out labels: the user picks the shortest
+        memory after which the held-out entropy stops falling.
+
+        Parameters
+        ----------
+        train, held_out : (T, D) array or list of them, pose sequences at the model's fps
+        memories : iterable of int >= 0, the maximal memories to try
+        augment, speeds, smoothing : augmentation of the training sequences, as in :meth:`fit`
+
+        Returns
+        -------
+        list of dict with ``max_memory``, ``n_states``, ``max_memory_used``,
+        ``train_entropy`` and ``heldout_entropy`` (bits per frame).
+        """
+        tr = _as_list(train)
+        if augment:
+            tr = [a for s in tr for a in feat.augment(s, speeds, smoothing)]
+        tr_labels = [self.label(self.features(s)) for s in tr]
+        ho_labels = [self.label(self.features(s)) for s in _as_list(held_out)]
+        v, out = self.vlmm, []
+        for m in memories:
+            model = Vlmm.fit(tr_labels, self.gmm.n_components, max_memory=int(m),
+                             epsilon=v.epsilon, min_count=v.min_count, gamma=v.gamma)
+            out.append({"max_memory": int(m), "n_states": model.n_states,
+                        "max_memory_used": int(model.depth.max()),
+                        "train_entropy": float(model.entropy(tr_labels)),
+                        "heldout_entropy": float(model.entropy(ho_labels)) if ho_labels
+                        else None})
+        return out
+
     def report(self) -> dict:
         """Summary figures.
 
