@@ -142,3 +142,27 @@ def test_fit_input_checks(body):
         fit_blobs(np.zeros((4, 3)), b, point_weights=-np.ones(4))
     with pytest.raises(ValueError, match="blobs"):
         mixture_kl(b, Blobs(np.zeros((3, 3)), np.stack([np.eye(3)] * 3), np.ones(3) / 3))
+
+
+def test_colour_keeps_blobs_on_their_own_parts():
+    """Two parts side by side, blobs started swapped: by shape alone EM keeps the swap; with
+    the acquired part colours each blob moves to the points of its own colour."""
+    from gltrack.observe.blobs import Blobs, PartColours, bgr_to_yuv, fit_blobs, part_colours
+
+    rng = np.random.default_rng(3)
+    a = rng.normal([0.0, 0.0, 0.0], 0.05, (400, 3))
+    b = rng.normal([0.3, 0.0, 0.0], 0.05, (400, 3))
+    pts = np.concatenate([a, b])
+    red, blue = bgr_to_yuv([30, 40, 200]), bgr_to_yuv([200, 60, 20])
+    col = np.concatenate([np.repeat(red[None], 400, 0), np.repeat(blue[None], 400, 0)])
+    col += rng.normal(0, 4, col.shape)
+    cov = np.repeat((np.eye(3) * 0.05 ** 2)[None], 2, 0)
+    truth = Blobs(np.array([[0.0, 0, 0], [0.3, 0, 0]]), cov, np.array([0.5, 0.5]))
+    colours = part_colours(pts, col, truth)
+    assert np.allclose(colours.means, [red, blue], atol=2.0)
+    assert isinstance(colours, PartColours) and np.all(np.linalg.eigvalsh(colours.covs) > 0)
+    swapped = Blobs(np.array([[0.22, 0, 0], [0.08, 0, 0]]), cov, np.array([0.5, 0.5]))
+    shape_only, _ = fit_blobs(pts, swapped, iterations=10)
+    coloured, _ = fit_blobs(pts, swapped, iterations=10, colours=col, part_colour=colours)
+    assert shape_only.means[0, 0] > 0.2 and shape_only.means[1, 0] < 0.1
+    assert abs(coloured.means[0, 0]) < 0.02 and abs(coloured.means[1, 0] - 0.3) < 0.02

@@ -271,9 +271,73 @@ def _log_gauss(X, mean, cov):
     return (-0.5 * (maha + logdet[:, None] + X.shape[1] * np.log(2 * np.pi))).T
 
 
+#: BGR -> YUV (rows Y, U, V), grey levels; U and V centred on 0
+_YUV = np.array([[0.114, 0.587, 0.299], [0.436, -0.289, -0.147], [-0.100, -0.515, 0.615]])
+#: grey levels^2 added to each part's colour variance (Y, U, V): lighting changes shift the
+#: luminance far more than the chromaticity
+COLOUR_REG = np.array([400.0, 25.0, 25.0])
+
+
+def bgr_to_yuv(bgr) -> np.ndarray:
+    """(..., 3) float64 YUV of (..., 3) BGR colours (0..255)."""
+    return np.asarray(bgr, dtype=np.float64) @ _YUV.T
+
+
+@dataclass
+class PartColours:
+    """The colour of each blob: a Gaussian in YUV (Caillette's blobs carry colour).
+
+    Attributes
+    ----------
+    means : (P, 3) float64, grey levels
+    covs : (P, 3, 3) float64, grey levels^2 (with :data:`COLOUR_REG` added)
+    """
+
+    means: np.ndarray
+    covs: np.ndarray
+
+    def blend(self, other: "PartColours", rate: float) -> "PartColours":
+        """Running average: ``(1 - rate) * self + rate * other``."""
+        return PartColours((1 - rate) * self.means + rate * other.means,
+                           (1 - rate) * self.covs + rate * other.covs)
+
+
+def _responsibilities(X, blobs: Blobs):
+    lp = _log_gauss(X, blobs.means, blobs.covs) + np.log(np.maximum(blobs.weights, 1e-300))
+    return np.exp(lp - logsumexp(lp, axis=1, keepdims=True))
+
+
+def part_colours(points, colours, blobs: Blobs, *, point_weights=None) -> PartColours:
+    """Acquire each blob's colour from coloured voxel points owned softly by ``blobs``.
+
+    Parameters
+    ----------
+    points : (M, 3) float, metres
+    colours : (M, 3) float, YUV grey levels of the points (:func:`bgr_to_yuv`)
+    blobs : Blobs (P,), e.g. the fit from a known pose
+    point_weights : (M,) float or None, voxel volumes
+
+    Returns
+    -------
+    PartColours; a part owning no points gets the mean colour and a wide covariance.
+    """
+    X = np.asarray(points, dtype=np.float64)
+    C = np.asarray(colours, dtype=np.float64)
+    w = np.ones(len(X)) if point_weights is None else np.asarray(point_weights, np.float64)
+    r = _responsibilities(X, blobs) * w[:, None]
+    nk = r.sum(axis=0)
+    overall = (w @ C) / w.sum()
+    mean = np.where(nk[:, None] > 1e-12, (r.T @ C) / np.maximum(nk, 1e-300)[:, None], overall)
+    d = C[None] - mean[:, None]
+    cov = np.einsum("mp,pmi,pmj->pij", r, d, d) / np.maximum(nk, 1e-300)[:, None, None]
+    wide = np.diag(np.var(C, axis=0) + COLOUR_REG)
+    cov = np.where((nk > 1e-12)[:, None, None], cov + np.diag(COLOUR_REG), wide)
+    return PartColours(mean, cov)
+
+
 def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
-              reg: float = 1e-4, min_support: float = 1e-3,
-              hard: bool = False) -> tuple[Blobs, float]:
+              reg: float = 1e-4, min_support: float = 1e-3, hard: bool = False,
+              colours=None, part_colour: PartColours | None = None) -> tuple[Blobs, float]:
     """EM fit of a Gaussian mixture to voxel centres, starting from predicted blobs.
 
     Parameters
@@ -287,6 +351,10 @@ def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
     min_support : float, a blob with less than this share of the weight keeps its initial
         shape (an occluded or missing part must not collapse)
     hard : bool, assign each voxel to its most likely blob (the paper's K-means variant)
+    colours : (M, 3) float or None, YUV colour of each point
+    part_colour : PartColours or None; with ``colours``, a point's ownership also weighs how
+        well its colour matches each blob's (fixed) colour Gaussian: the Mahalanobis distance
+        on position and colour of the paper's fit, which keeps blobs on their own parts
 
     Returns
     -------
@@ -305,9 +373,15 @@ def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
     pi = pi / pi.sum()
     eye = np.eye(3) * reg
     cov = cov + eye
+    col_lp = 0.0
+    if colours is not None and part_colour is not None:
+        C = np.asarray(colours, dtype=np.float64)
+        if C.shape != X.shape:
+            raise ValueError(f"colours must be (M, 3) like points, got {C.shape}")
+        col_lp = _log_gauss(C, part_colour.means, part_colour.covs)
     ll = -np.inf
     for it in range(int(iterations) + 1):
-        lp = _log_gauss(X, mean, cov) + np.log(pi)
+        lp = _log_gauss(X, mean, cov) + np.log(pi) + col_lp
         norm = logsumexp(lp, axis=1, keepdims=True)
         ll = float(np.sum(w * norm[:, 0]))
         if it == iterations:

@@ -301,9 +301,15 @@ def carve_brute_force(cameras, masks, bounds, *, base: int = 16, max_depth: int 
 def voxel_colours(voxels: Voxels, cameras, images, *, distort: bool = True) -> np.ndarray:
     """(M, 3) float32 mean BGR colour of the pixels under each voxel centre over the cameras
     that see the centre inside their image (occlusion is not modelled)."""
+    return point_colours(voxels.centers, cameras, images, distort=distort)
+
+
+def point_colours(points, cameras, images, *, distort: bool = True) -> np.ndarray:
+    """(M, 3) float32 mean BGR colour (0..255) of the pixels under points (M, 3), metres, over
+    the cameras that see each point inside their image (occlusion is not modelled)."""
     if len(images) != len(cameras):
         raise ValueError(f"need one image per camera, got {len(images)} for {len(cameras)}")
-    c = voxels.centers
+    c = np.asarray(points, dtype=np.float64)
     acc = np.zeros((len(c), 3))
     n = np.zeros(len(c))
     for cam, img in zip(cameras, images):
