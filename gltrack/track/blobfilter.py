@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,7 +34,8 @@ from gltrack.sample.diffusion import StateSpace
 from gltrack.sample.resampling import systematic_resample
 
 from .base import FrameEstimate, Tracker
-from .blob_evidence import BlobEvidence, ColourAcquisition, placed_candidates, stage_seconds
+from .blob_evidence import (BlobEvidenceOptions, ColourAcquisition, placed_candidates,
+                            stage_seconds)
 from .runner import register
 
 log = logging.getLogger(__name__)
@@ -65,44 +66,25 @@ def inject_failure(particles, dofs, rad: float, shift: float) -> np.ndarray:
 
 
 @dataclass
-class CondensationOptions:
-    """Options of ``condensation`` (``--config`` keys).
+class CondensationOptions(BlobEvidenceOptions):
+    """Options of ``condensation`` (``--config`` keys): those of the likelihood
+    (:class:`~gltrack.track.blob_evidence.BlobEvidenceOptions`) plus
 
     particles : particles per frame (= KL evaluations per frame)
     sigma_scale : multiplier of the DOF preset's inter-frame sigmas (the diffusion)
     survival : target effective sample size / N that sets the weight exponent
     estimate : weighted "mean" (default: steadier under a noisy likelihood; salsa, condensation
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
-    volume : tracking volume [xmin, ymin, zmin, xmax, ymax, zmax], metres; empty = 3 m x 3 m
-        around the point the cameras look at, floor to 2.5 m
-    base, max_depth, tolerance : voxel reconstruction (max_depth 3 = the paper's depth 7)
-    segmentation : "masks" (the dataset's foreground masks) or "colour" (chi-square test of
-        pixel samples against the background frames, the paper's own)
-    fit_iterations : EM iterations of the blob fit
-    colour : coloured blobs (the fit weighs the voxels' colours; false: shape only)
-    colour_frames : frames over which the blobs' colours are acquired from the estimates
     headings : headings tried by ``--init auto``
     lost_threshold : best-particle KL (nats) above which a frame is reported lost
-    perturb_frame, perturb_rad, perturb_shift : failure injection (-1 = never)
     """
 
     particles: int = 1000
     sigma_scale: float = 1.0
     survival: float = 0.3
     estimate: str = "mean"
-    volume: list = field(default_factory=list)
-    base: int = 16
-    max_depth: int = 3
-    tolerance: int = 0
-    segmentation: str = "masks"
-    fit_iterations: int = 4
-    colour: bool = True
-    colour_frames: int = 5
     headings: int = 12
     lost_threshold: float = LOST_KL
-    perturb_frame: int = -1
-    perturb_rad: float = 1.5
-    perturb_shift: float = 0.5
 
     def check(self, method):
         bad = []
@@ -148,10 +130,7 @@ class CondensationTracker(Tracker):
         opt.check(self.method)
         self.ds, self.body = dataset, body
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.evidence = BlobEvidence(dataset, body, volume=opt.volume, base=opt.base,
-                                     max_depth=opt.max_depth, tolerance=opt.tolerance,
-                                     segmentation=opt.segmentation,
-                                     fit_iterations=opt.fit_iterations, colour=opt.colour)
+        self.evidence = opt.evidence(dataset, body)
         self.space = StateSpace.from_dofs(body.dofs, dataset.fps)
         self.first_sigma = self.space.sigma * opt.sigma_scale
         self.P = None

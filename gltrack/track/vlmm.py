@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -42,7 +42,8 @@ from gltrack.sample.resampling import systematic_resample
 from gltrack.sample.weights import Weights, annealing_exponent
 
 from .base import FrameEstimate, Tracker
-from .blob_evidence import BlobEvidence, ColourAcquisition, placed_candidates, stage_seconds
+from .blob_evidence import (BlobEvidenceOptions, ColourAcquisition, placed_candidates,
+                            stage_seconds)
 from .blobfilter import LOST_KL, inject_failure
 from .runner import register
 
@@ -209,12 +210,15 @@ def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
 
 # ----------------------------------------------------------------------------- the tracker
 @dataclass
-class VlmmOptions:
-    """Options of the behaviour-model tracker (``--config`` keys).
+class VlmmOptions(BlobEvidenceOptions):
+    """Options of the behaviour-model tracker (``--config`` keys): those of the blob likelihood
+    (:class:`~gltrack.track.blob_evidence.BlobEvidenceOptions`; its voxels also place the
+    candidates of initialisation and recovery with the silhouette evaluation) plus
 
     model : path of the behaviour model .npz (``gltrack learn``); required
     particles : particles per frame (= evaluations per frame outside recovery)
-    evaluation : "silhouette" (GPU XOR against the masks) or "blobs" (voxels + blob KL)
+    evaluation : "blobs" (voxels + blob KL, the paper's) or "silhouette" (GPU XOR against the
+        masks)
     lam : attenuation of the local-dynamics noise (eq. 4)
     root_scale, other_scale : multipliers of the DOF sigmas diffusing the root and the angles
         the model does not cover
@@ -222,21 +226,11 @@ class VlmmOptions:
     estimate : weighted "mean" (default: steadier under a noisy likelihood; salsa, condensation
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
     tile : silhouette tile side, pixels (power of two)
-    volume : tracking volume [xmin, ymin, zmin, xmax, ymax, zmax], metres; empty = 3 m x 3 m
-        around the point the cameras look at, from the floor to 2.5 m
-    base, max_depth, tolerance : voxel reconstruction (max_depth 3 = the paper's depth 7; see
-        :class:`gltrack.track.blob_evidence.BlobEvidence`)
-    segmentation : "masks" (the dataset's foreground masks) or "colour" (the paper's chi-square
-        test of pixel samples against the background frames)
     fit_inits : clusters (by particle support) whose predicted poses initialise the blob fit
-    colour, colour_frames : coloured blobs, acquired over this many first frames (blobs only)
-    fit_iterations : EM iterations of the blob fit
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
     lost_frames : consecutive bad frames before recovery; 0 disables recovery
-    perturb_frame, perturb_rad, perturb_shift : failure injection for the recovery benchmark
-        (see :func:`gltrack.track.blobfilter.inject_failure`; -1 = never)
     """
 
     model: str = ""
@@ -248,21 +242,10 @@ class VlmmOptions:
     survival: float = 0.3
     estimate: str = "mean"
     tile: int = 64
-    volume: list = field(default_factory=list)
-    base: int = 16
-    max_depth: int = 3
-    tolerance: int = 0
-    segmentation: str = "masks"
     fit_inits: int = 3
-    colour: bool = True
-    colour_frames: int = 5
-    fit_iterations: int = 4
     headings: int = 12
     lost_threshold: float = 0.0
     lost_frames: int = 3
-    perturb_frame: int = -1
-    perturb_rad: float = 1.5
-    perturb_shift: float = 0.5
 
 
 class VlmmTracker(Tracker):
@@ -290,10 +273,7 @@ class VlmmTracker(Tracker):
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
                                root_scale=opt.root_scale, other_scale=opt.other_scale)
         # the voxels place the candidates of initialisation and recovery in both evaluations
-        self.evidence = BlobEvidence(dataset, body, volume=opt.volume, base=opt.base,
-                                     max_depth=opt.max_depth, tolerance=opt.tolerance,
-                                     segmentation=opt.segmentation,
-                                     fit_iterations=opt.fit_iterations, colour=opt.colour)
+        self.evidence = opt.evidence(dataset, body)
         self.cameras = self.evidence.cameras
         self.lost_threshold = opt.lost_threshold or LOST_DEFAULT[opt.evaluation]
         self.engine = None
