@@ -208,11 +208,6 @@ class BlobModel:
         return np.einsum("np,npi->ni", b.weights, b.means)
 
 
-def _chol_logdet(S):
-    L = np.linalg.cholesky(S)
-    return L, 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-
-
 def gaussian_kl(mu_f, cov_f, mu_g, cov_g) -> np.ndarray:
     """Closed-form ``KL(f || g)`` between Gaussians, nats, broadcast over leading axes.
 
@@ -230,16 +225,23 @@ def gaussian_kl(mu_f, cov_f, mu_g, cov_g) -> np.ndarray:
     mu_f, mu_g = np.asarray(mu_f, np.float64), np.asarray(mu_g, np.float64)
     cov_f, cov_g = np.asarray(cov_f, np.float64), np.asarray(cov_g, np.float64)
     d = mu_f.shape[-1]
-    shape = np.broadcast_shapes(cov_f.shape, cov_g.shape)
-    cov_f, cov_g = np.broadcast_to(cov_f, shape), np.broadcast_to(cov_g, shape)
-    Lg, logdet_g = _chol_logdet(cov_g)
-    _, logdet_f = _chol_logdet(cov_f)
-    sol = np.linalg.solve(cov_g, cov_f)
-    tr = np.trace(sol, axis1=-2, axis2=-1)
-    diff = np.broadcast_to(mu_g - mu_f, shape[:-1])
-    y = np.linalg.solve(Lg, diff[..., None])[..., 0]
-    maha = np.sum(y * y, axis=-1)
-    return np.maximum(0.5 * (logdet_g - logdet_f - d + tr + maha), 0.0)
+    # invert g before broadcasting: one evidence blob is compared with thousands of particles'
+    inv_g = np.linalg.inv(cov_g)
+    tr = np.sum(inv_g * np.swapaxes(cov_f, -1, -2), axis=(-2, -1))
+    diff = mu_g - mu_f
+    maha = np.einsum("...i,...ij,...j->...", diff, inv_g, diff)
+    return np.maximum(0.5 * (_logdet(cov_g) - _logdet(cov_f) - d + tr + maha), 0.0)
+
+
+def _logdet(S):
+    """(...,) log-determinant of symmetric positive definite (..., d, d) matrices (closed form
+    for 3x3, which avoids one LAPACK call per matrix)."""
+    if S.shape[-2:] != (3, 3):
+        return np.linalg.slogdet(S)[1]
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    e, f, i = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
+    det = a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c)
+    return np.log(np.maximum(det, 1e-300))
 
 
 def mixture_kl(model: Blobs, observed: Blobs) -> np.ndarray:
@@ -264,11 +266,10 @@ def mixture_kl(model: Blobs, observed: Blobs) -> np.ndarray:
 
 def _log_gauss(X, mean, cov):
     """(M, P) log N(x_m | mean_p, cov_p) for X (M, 3), mean (P, 3), cov (P, 3, 3)."""
-    L, logdet = _chol_logdet(cov)
+    inv = np.linalg.inv(cov)  # P small inversions instead of P * M triangular solves
     diff = X[None, :, :] - mean[:, None, :]  # (P, M, 3)
-    y = np.linalg.solve(L[:, None], diff[..., None])[..., 0]
-    maha = np.sum(y * y, axis=-1)
-    return (-0.5 * (maha + logdet[:, None] + X.shape[1] * np.log(2 * np.pi))).T
+    maha = np.einsum("pmi,pij,pmj->pm", diff, inv, diff)
+    return (-0.5 * (maha + _logdet(cov)[:, None] + X.shape[1] * np.log(2 * np.pi))).T
 
 
 #: BGR -> YUV (rows Y, U, V), grey levels; U and V centred on 0
