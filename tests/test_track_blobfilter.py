@@ -125,3 +125,45 @@ def test_injected_failure_moves_the_estimate(setup, ctx):
             est = [tr.step(f).params for f in range(6)]
             errs[at] = np.linalg.norm(body.joints(np.stack(est))[4:] - gt[4:6], axis=2).mean()
     assert errs[4] > errs[-1] + 0.2, errs
+
+
+def test_chi_square_segmentation_matches_the_masks(setup, tmp_path):
+    """segmentation = "colour" learns a YUV background from the empty-scene frames and carves
+    about the same body as the true masks; without background frames it says what is missing."""
+    from gltrack.bench.vlmm import render_masks
+    from gltrack.body.model import body_to_meta
+    from gltrack.data.dataset import DatasetWriter
+
+    root, body, test, _ = setup
+    rng = np.random.default_rng(5)
+    cams = ring_cameras((0.2, 0.9, 0.0), width=160, height_px=120)
+    masks = render_masks(body, test[:2], cams)
+    base = [rng.integers(40, 120, (120, 160, 3)).astype(np.float64) for _ in cams]
+
+    def noisy(img):
+        return np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
+
+    with DatasetWriter(tmp_path / "col", "multiview", 30.0, cams,
+                       body=body_to_meta(body.skeleton, body.dofs.preset, body.lod)) as w:
+        for c in range(len(cams)):
+            for k in range(6):
+                w.write_background(c, noisy(base[c]), index=k)
+        for f in range(2):
+            for c, m in enumerate(masks[f]):
+                img = base[c].copy()
+                img[m] = (40, 90, 200)
+                w.write_colour(f, c, noisy(img))
+                w.write_mask(f, c, m)
+        w.write_groundtruth(body.joints(test[:2]), list(body.skeleton.names),
+                            body.marker_positions(test[:2]), test[:2])
+    with Dataset.open(tmp_path / "col") as ds:
+        vol = {}
+        for seg in ("masks", "colour"):
+            ev = BlobEvidence(ds, body, max_depth=2, segmentation=seg)
+            ev.set_frame(1)
+            vol[seg] = ev.voxels.volume
+        assert vol["masks"] > 0.03 and abs(vol["colour"] / vol["masks"] - 1) < 0.15, vol
+    with Dataset.open(root / "ds") as ds:
+        ev = BlobEvidence(ds, body, max_depth=1, segmentation="colour")
+        with pytest.raises(ValueError, match="no background frames"):
+            ev.set_frame(0)
