@@ -227,6 +227,76 @@ def test_learn_parts_command_on_a_dataset(body, tmp_path, capsys):
     assert learn_parts.NAME == "learn-parts"
 
 
+def test_nearest_part_rule_does_not_swap_limbs(body, ep_problem):
+    sk, dofs, kin, pm, mesh = body
+    x_true, x0, cost, hc, sig = ep_problem
+    x_hc, c_hc, _ = hc(x0)
+    parts = pm.positions(x_hc)[0]
+    # a "foot" detection 20 cm right of the right foot (not explained: beyond the prune radius)
+    det = [(parts[4] + [-0.2, 0.0, 0.0], "foot")]
+    kw = dict(sigma=5 * sig, chains=part_chains(sk, dofs), lower=dofs.lower, upper=dofs.upper,
+              cost_best=c_hc, max_passes=1)
+    calls = []
+
+    def spy(x):  # a real climb; records which foot the IK moved
+        moved = np.linalg.norm(pm.positions(x)[0][3:5] - parts[3:5], axis=1)
+        calls.append(int(np.argmax(moved)))
+        return hc(x)
+
+    evidence_propagation(x_hc, det, pm.part_fns(), PART_CLASSES, cost, spy, **kw)
+    assert sorted(calls) == [0, 1]  # both feet were proposed for it ...
+    calls.clear()
+    evidence_propagation(x_hc, det, pm.part_fns(), PART_CLASSES, cost, spy, nearest=True, **kw)
+    assert calls == [1]  # ... now only the right foot, the nearer one
+
+
+def test_training_ranges_are_disjoint_from_the_bench():
+    from gltrack.bench.depth import CLIPS, TRAIN_RANGES, bench_range
+
+    assert set(TRAIN_RANGES) == set(CLIPS)
+    for clip, ranges in TRAIN_RANGES.items():
+        lo, hi = bench_range(clip, 60)
+        assert bench_range(clip, 30)[1] < hi
+        for a, b in ranges:
+            assert 0 <= a < b and (b <= lo or a >= hi), (clip, a, b)
+    assert bench_range("hop", 60) == (760, 1000)
+
+
+def test_learn_parts_mocap_usage_errors(tmp_path, capsys):
+    from gltrack.cli import main
+
+    out = str(tmp_path / "m.npz")
+    assert main(["learn-parts", "--mocap", str(tmp_path / "missing"), "--out", out]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert main(["learn-parts", "--mocap", str(tmp_path), "--data", str(tmp_path),
+                 "--out", out]) == 2
+    assert "exclusive" in capsys.readouterr().err
+    assert main(["learn-parts", "--mocap", str(tmp_path), "--out", out]) == 2  # no BVH in it
+    assert "not found" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.slow
+def test_learn_parts_from_mocap_training_ranges(shared, tmp_path, capsys):
+    """The shipped model's recipe: held-out frames of real motion are recognised."""
+    import json
+
+    from gltrack.cli import main
+
+    if not (shared / "mocap").is_dir():
+        pytest.skip(f"{shared / 'mocap'} is absent")
+    out = tmp_path / "parts.npz"
+    assert main(["-q", "learn-parts", "--mocap", str(shared / "mocap"), "--out", str(out),
+                 "--seed", "0", "--json", str(tmp_path / "r.json")]) == 0
+    doc = json.loads((tmp_path / "r.json").read_text())
+    rep = doc["report"]  # held-out frames of the clips
+    assert rep["head"]["recall"] > 0.8 and rep["head"]["precision"] > 0.8
+    assert rep["foot"]["recall"] > 0.7 and rep["foot"]["precision"] > 0.8
+    gen = doc["report_rendered"]  # held-out random poses: the model stays general
+    assert gen["hand"]["recall"] > 0.8 and gen["foot"]["recall"] > 0.8
+    assert C.PartClassifier.load(out).label_radius == pytest.approx(0.16)
+
+
 # ------------------------------------------------------------------------------------------
 # UT inverse kinematics
 
@@ -363,3 +433,55 @@ def test_evidence_layer_never_imports_gl():
             "or m == 'gltrack.render.engine']; print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+# ------------------------------------------------------------------------------------------
+# reach gate
+
+
+def test_part_reach_bounds_every_pose(body, rng):
+    from gltrack.evidence.ik import part_reach
+    from gltrack.evidence.synthetic import random_poses
+
+    sk, dofs, kin, pm, mesh = body
+    chains = part_chains(sk, dofs)
+    reach = part_reach(kin, chains, slack=0.0)
+    assert set(reach) == set(PART_NAMES)
+    X = random_poses(rng, sk, dofs, 300)
+    parts = pm.positions(X)
+    pose = kin.forward(X)
+    # the hand's anchor is the outermost joint its chain moves: the clavicle (torso excluded)
+    np.testing.assert_allclose(reach["l_hand"][0](X), pose.positions[:, sk.index("l_clavicle")])
+    for i, n in enumerate(PART_NAMES):
+        fn, r = reach[n]
+        d = np.linalg.norm(parts[:, i] - fn(X), axis=1)
+        assert d.max() <= r + 1e-9, n
+        assert d.max() > 0.7 * r, n  # a bound, but not a loose one
+    assert reach["l_hand"][1] == pytest.approx(reach["r_hand"][1])
+    assert 0.5 < reach["l_hand"][1] < 1.0 and 0.7 < reach["l_foot"][1] < 1.3
+    assert part_reach(kin, chains, slack=0.2)["head"][1] == pytest.approx(reach["head"][1] + 0.2)
+
+
+def test_reach_gate_skips_unreachable_detections(body, ep_problem):
+    from gltrack.evidence.ik import part_reach
+
+    sk, dofs, kin, pm, mesh = body
+    x_true, x0, cost, hc, sig = ep_problem
+    x_hc, c_hc, _ = hc(x0)
+    truth = pm.positions(x_true)[0]
+    chains = part_chains(sk, dofs)
+    reach = part_reach(kin, chains)
+    far = truth[1] + [0.0, 0.0, 2.5]  # 2.5 m in front of the true hand: no arm gets there
+    kw = dict(sigma=5 * sig, chains=chains, lower=dofs.lower, upper=dofs.upper, cost_best=c_hc)
+    alone = [(far, "hand")]
+    free = evidence_propagation(x_hc, alone, pm.part_fns(), PART_CLASSES, cost, hc, **kw)
+    gated = evidence_propagation(x_hc, alone, pm.part_fns(), PART_CLASSES, cost, hc, reach=reach,
+                                 **kw)
+    assert free.evaluations > 0  # both hands were proposed for it ...
+    assert gated.evaluations == 0 and not gated.accepted  # ... and now neither is
+    # the true detection is within reach and still recovers the arm
+    both = evidence_propagation(x_hc, [(far, "hand"), (truth[1], "hand")], pm.part_fns(),
+                                PART_CLASSES, cost, hc, reach=reach, **kw)
+    assert [(a["part"], a["detection"]) for a in both.accepted] == [("l_hand", 1)]
+    assert np.linalg.norm(pm.positions(both.x)[0][1] - truth[1]) < 0.03
+

@@ -237,3 +237,64 @@ def test_velocity_search_widens_the_grid_of_fast_dofs(ds, ctx):
     assert np.allclose(steps[0.0], 2.0 * tr.sigma)
     assert steps[1.0][4] == pytest.approx(steps[0.0][4] + 0.3)
     assert np.array_equal(np.delete(steps[1.0], 4), np.delete(steps[0.0], 4))
+
+
+def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
+    from gltrack.body.model import body_from_meta
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    d = Dataset.open(ds)
+    body = body_from_meta(d.body, None)
+    x0 = d.groundtruth()["params"][0]
+    tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(heading_hypotheses=3))
+    try:
+        tr.start(0, x0)
+        yaw = body.dofs.index("pelvis_ry")
+        target = x0.copy()
+        target[yaw] += 5.0 * tr.sigma[yaw]  # the subject turned 5 sigmas: outside a +-2 grid
+        target[0] += 0.5 * tr.sigma[0]
+
+        def cost(X):  # two headings fit: a shallow valley at x0's, the true deep one beyond
+            X = np.atleast_2d(X)
+            near = np.sum(((X - x0) / tr.sigma) ** 2, axis=1)
+            true = np.sum(((X - target) / tr.sigma) ** 2, axis=1) - 2.0
+            return np.minimum(near, true)
+
+        steps = tr.search_steps()
+        root = list(range(6))
+        single = tr._climb(cost, x0, root, steps, tr.opt.levels)
+        x, evals, calls = tr._best_heading(cost, x0, steps, tr.opt.levels)
+        assert abs(single.x[yaw] - x0[yaw]) < 0.5 * tr.sigma[yaw]  # one start stays put
+        assert abs(x[yaw] - target[yaw]) < 0.2 * tr.sigma[yaw]
+        assert abs(x[0] - target[0]) < 0.2 * tr.sigma[0]
+        assert evals == 3 * single.evaluations and calls == 3 * single.calls
+        # the hypotheses feed refine(): its evaluations include the three root climbs
+        tr.observe(1)
+        r3 = tr.refine(x0, x0)
+        tr.opt.heading_hypotheses = 1
+        r1 = tr.refine(x0, x0)
+        assert r3.evaluations == r1.evaluations + evals
+    finally:
+        tr.close()
+
+
+def test_root_sigma_scale_widens_only_the_pelvis_rotation(ds, ctx):
+    from gltrack.body.model import body_from_meta
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker, root_rotation_dofs
+
+    d = Dataset.open(ds)
+    body = body_from_meta(d.body, None)
+    sig = {}
+    for s in (1.0, 2.5):
+        tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(root_sigma_scale=s))
+        sig[s] = tr.sigma
+        tr.close()
+    rot = root_rotation_dofs(body.dofs)
+    assert rot == [3, 4, 5]
+    np.testing.assert_allclose(sig[2.5][rot], 2.5 * sig[1.0][rot])
+    np.testing.assert_array_equal(np.delete(sig[2.5], rot), np.delete(sig[1.0], rot))
+    np.testing.assert_array_equal(sig[1.0], body.dofs.sigma_at(d.fps))
+    with pytest.raises(ValueError, match="root_sigma_scale"):
+        DepthOptions(root_sigma_scale=0).check()
+    with pytest.raises(ValueError, match="heading_hypotheses"):
+        DepthOptions(heading_hypotheses=0).check()

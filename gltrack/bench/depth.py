@@ -47,6 +47,14 @@ CLIPS = {
     "salsa": ("cmu_60_10_salsa_daz_metres.bvh", 400),
 }
 SOURCE_FPS = 120
+#: clip -> source-frame ranges [first, last) for training the part classifier (``gltrack
+#: learn-parts --mocap``), disjoint from the bench's frames of every clip so no bench frame or
+#: its neighbours is seen in training (the salsa's glitches near 300-365 are avoided too).
+TRAIN_RANGES = {
+    "walk": ((260, 344),),
+    "hop": ((100, 740), (1020, 1240)),
+    "salsa": ((0, 280), (660, 1180)),
+}
 FPS = 30.0
 METHODS = ("hc", "ep", "hc+ep")
 LIKELIHOODS = {"pixel": False, "smoothed": True}
@@ -76,6 +84,38 @@ def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) ->
     if proc.returncode != 0:
         raise RuntimeError(f"gltrack synth failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
     return out
+
+
+def bench_range(clip: str, frames: int = 60) -> tuple[int, int]:
+    """Source frames [first, last) of ``clip`` that a bench of ``frames`` frames uses."""
+    first = CLIPS[clip][1]
+    return first, first + int(round(frames * SOURCE_FPS / FPS))
+
+
+def synth_training_sets(mocap: Path, out: Path, seed: int = 0) -> list[Path]:
+    """Depth datasets of :data:`TRAIN_RANGES` for the part classifier, one per range.
+
+    Parameters
+    ----------
+    mocap : path, folder with the BVH files of :data:`CLIPS`
+    out : path, folder to create the datasets in
+    seed : int, sensor-noise seed of the first dataset (the i-th uses ``seed + i``)
+
+    Returns
+    -------
+    list of dataset folders
+    """
+    mocap, out = Path(mocap), Path(out)
+    paths = []
+    for clip, ranges in TRAIN_RANGES.items():
+        bvh = mocap / CLIPS[clip][0]
+        if not bvh.is_file():
+            raise ValueError(f"{bvh}: BVH clip of {clip!r} not found (--mocap folder)")
+        for a, b in ranges:
+            frames = int((b - a) * FPS / SOURCE_FPS)
+            paths.append(synth_depth(bvh, out / f"{clip}_{a}_{b}", a, frames,
+                                     seed=seed + len(paths)))
+    return paths
 
 
 def _marker_index(names, wanted):

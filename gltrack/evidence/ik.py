@@ -205,3 +205,46 @@ def ut_ik(x_prev, part_fn, y, R, sigma, *, dofs=None, lower=None, upper=None,
     log.debug("ut_ik: %d iterations, converged=%s, |residual|=%.4g", it, converged,
               np.linalg.norm(res))
     return IKResult(x, P, idx, it, converged, res)
+
+
+def part_reach(kin, chains: dict, slack: float = 0.1) -> dict:
+    """Where each part can be put by moving its chain: ``{part: (anchor_fn, radius)}``.
+
+    The anchor is the joint of the chain's outermost bone (e.g. the clavicle joint for a hand
+    when the torso is not in the chain), the radius the sum of the chain's bone lengths plus
+    the part point's offset (the limb fully stretched) plus ``slack`` (detection noise, soft
+    tissue). For :func:`gltrack.evidence.associate.evidence_propagation`'s ``reach``.
+
+    Parameters
+    ----------
+    kin : gltrack.body.kinematics.Kinematics
+    chains : dict part name -> (d,) int DOFs (e.g. :func:`part_chains`)
+    slack : float, metres
+
+    Returns
+    -------
+    dict part name -> (callable ``X (N, D) -> (N, 3)`` metres, radius float metres)
+    """
+    from .parts import PART_NAMES, part_points
+
+    sk, dofs = kin.skeleton, kin.dofs
+    bone, local = part_points(sk)
+    out = {}
+    for i, name in enumerate(PART_NAMES):
+        if name not in chains or len(chains[name]) == 0:
+            continue
+        joints = {int(dofs.joint[k]) for k in chains[name]}
+        path, k = [], int(bone[i])  # the part's bone up to the root
+        while k >= 0:
+            path.append(k)
+            k = int(sk.parents[k])
+        top = max((path.index(j) for j in joints if j in path), default=0)
+        anchor = path[top]
+        radius = float(np.linalg.norm(local[i]) + slack
+                       + sum(np.linalg.norm(sk.offsets[j]) for j in path[:top]))
+
+        def fn(X, a=anchor):
+            return kin.forward(np.atleast_2d(X)).positions[:, a]
+
+        out[name] = (fn, radius)
+    return out
