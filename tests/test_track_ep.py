@@ -268,6 +268,12 @@ def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
         assert abs(x[yaw] - target[yaw]) < 0.2 * tr.sigma[yaw]
         assert abs(x[0] - target[0]) < 0.2 * tr.sigma[0]
         assert evals == 3 * single.evaluations and calls == 3 * single.calls
+        # heading_margin: the far valley is 2 lower; a margin above that keeps the prediction's
+        for margin, goal in ((1.0, target), (3.0, x0)):
+            tr.opt.heading_margin = margin
+            xm, _, _ = tr._best_heading(cost, x0, steps, tr.opt.levels)
+            assert abs(xm[yaw] - goal[yaw]) < 0.5 * tr.sigma[yaw], margin
+        tr.opt.heading_margin = 0.0
         # the hypotheses feed refine(): its evaluations include the three root climbs
         tr.observe(1)
         r3 = tr.refine(x0, x0)
@@ -298,3 +304,5 @@ def test_root_sigma_scale_widens_only_the_pelvis_rotation(ds, ctx):
         DepthOptions(root_sigma_scale=0).check()
     with pytest.raises(ValueError, match="heading_hypotheses"):
         DepthOptions(heading_hypotheses=0).check()
+    with pytest.raises(ValueError, match="heading_margin"):
+        DepthOptions(heading_margin=-1.0).check()
