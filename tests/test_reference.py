@@ -1,4 +1,4 @@
-"""CPU oracle (gltrack.render.reference) and pyrender baseline (gltrack.render.baseline)."""
+"""CPU oracle (gltrack.render.reference) and pyrender baseline (gltrack.bench.baseline)."""
 from __future__ import annotations
 
 import time
@@ -12,7 +12,7 @@ from gltrack.body.kinematics import Kinematics
 from gltrack.body.mesh import BodyMesh, make_body_mesh
 from gltrack.body.skeleton import default_skeleton
 from gltrack.render import reference as ref
-from gltrack.render.baseline import gl_camera_pose, run_baseline_in_subprocess
+from gltrack.bench.baseline import gl_camera_pose, run_baseline_in_subprocess
 
 # ---------------------------------------------------------------------------------------------
 # fixtures

@@ -4,7 +4,7 @@ For each mode the same candidates are scored three ways:
 
 * the engine (:class:`gltrack.render.engine.ScoringEngine`, reduction chosen by timing);
 * the naive baseline: one pyrender render per candidate and camera with CPU skinning, plus the
-  numpy cost (:mod:`gltrack.render.baseline`, run in a child process so its GL context never meets
+  numpy cost (:mod:`gltrack.bench.baseline`, run in a child process so its GL context never meets
   ours). For ``appearance4x64`` the baseline is the silhouette render count; it omits the triangle-id
   render an appearance test also needs, so that speed-up is a lower bound;
 * the throughput bound: the same instanced triangles drawn with a trivial shader (no skinning, no
@@ -113,7 +113,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     from gltrack.body.skeleton import default_skeleton
     from gltrack.gl.context import capabilities, shared_context
     from gltrack.render import reference as ref
-    from gltrack.render.baseline import run_baseline_in_subprocess
+    from gltrack.bench.baseline import run_baseline_in_subprocess
     from gltrack.render.engine import ScoringEngine
 
     rng = np.random.default_rng(seed)

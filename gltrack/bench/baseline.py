@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from . import reference
+from gltrack.render import reference
 
 log = logging.getLogger(__name__)
 
