@@ -7,7 +7,7 @@ from gltrack.body.model import BodyModel
 from gltrack.cli import main
 from gltrack.motion.behaviour import BehaviourModel
 from gltrack.motion.bvh import write_bvh
-from gltrack.motion.export import params_to_bvh
+from gltrack.export.bvh import params_to_bvh
 from gltrack.motion.retarget import load_motion
 
 

@@ -217,7 +217,7 @@ def test_load_motion_cuts_and_resamples(shared, tmp_path):
 def test_results_bvh_reads_back_as_gltrack_convention(tmp_path, rng):
     """poses.bvh written by gltrack itself retargets onto the same body exactly."""
     from gltrack.body.model import BodyModel
-    from gltrack.motion.export import write_params_bvh
+    from gltrack.export.bvh import write_params_bvh
     from gltrack.motion.names import detect_convention
     from gltrack.motion.retarget import load_motion
 

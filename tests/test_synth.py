@@ -18,7 +18,7 @@ from gltrack.data.scene import DISTRACTOR_SIZE, Room, make_room
 from gltrack.data.sim_depth import TofNoise, apply_tof_noise, depth_edges
 from gltrack.data.sim_multiview import iou
 from gltrack.motion.bvh import write_bvh
-from gltrack.motion.export import params_to_bvh
+from gltrack.export.bvh import params_to_bvh
 
 REPO = Path(__file__).resolve().parents[1]
 FPS = 30

@@ -73,6 +73,7 @@ def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "
     -------
     Path written
     """
+    from .bvh import write_params_bvh
     from .gltf import write_glb
     from .jsonout import write_json
     from .trc import write_trc
@@ -82,8 +83,6 @@ def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "
         raise ValueError("the result holds no frames: nothing to export")
     frames = np.asarray(result["frame"], dtype=np.int64)
     if fmt == "bvh":
-        from gltrack.motion.export import write_params_bvh
-
         if np.any(np.diff(frames) != 1):
             log.warning("%s: frames are not consecutive (%d..%d, %d frames); BVH has no frame "
                         "numbers, so the gaps close up", out, frames[0], frames[-1], len(frames))
@@ -108,9 +107,11 @@ def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "
     raise ValueError(f"unknown export format {fmt!r} (have {', '.join(FORMATS)})")
 
 
+from .bvh import params_to_bvh, write_params_bvh  # noqa: E402
 from .gltf import build_glb, write_glb  # noqa: E402
 from .jsonout import motion_document, write_json  # noqa: E402
 from .trc import format_trc, read_trc, write_trc  # noqa: E402
 
-__all__ = ["FORMATS", "body_for_result", "export_result", "build_glb", "write_glb",
-           "motion_document", "write_json", "format_trc", "read_trc", "write_trc"]
+__all__ = ["FORMATS", "body_for_result", "export_result", "params_to_bvh", "write_params_bvh",
+           "build_glb", "write_glb", "motion_document", "write_json", "format_trc", "read_trc",
+           "write_trc"]

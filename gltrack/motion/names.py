@@ -11,7 +11,7 @@ as ``mixamorig:``):
   ``lowerneck``, ``Neck``, ``Head``, ``LeftCollar`` (clavicle), ``LeftShoulder`` (**upper
   arm**), ``LeftElbow``, ``LeftWrist``, ``LeftHip``, ``LeftKnee``, ``LeftAnkle``, ``LeftToe``.
 * ``"gltrack"``: the canonical names themselves (``pelvis``, ``l_shoulder``, ...), as written by
-  :mod:`gltrack.motion.export`, so results' ``poses.bvh`` reads back.
+  :mod:`gltrack.export.bvh`, so results' ``poses.bvh`` reads back.
 * ``"daz"`` (Daz/Poser): ``hip``, ``abdomen``, ``chest``, ``neck``, ``head``, ``lCollar``,
   ``lShldr``, ``lForeArm``, ``lHand``, ``lButtock``, ``lThigh``, ``lShin``, ``lFoot``.
 
@@ -43,7 +43,7 @@ def _sided(table: dict) -> dict:
 
 #: Candidate BVH names per canonical joint for each convention (first present one wins).
 CONVENTIONS = {
-    # gltrack's own names (what gltrack.motion.export writes into results' poses.bvh).
+    # gltrack's own names (what gltrack.export.bvh writes into results' poses.bvh).
     "gltrack": {name: [name] for name in JOINT_NAMES},
     "motionbuilder": _sided({
         "pelvis": ["Hips"],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bvh import Bvh, write_bvh
+from gltrack.motion.bvh import Bvh, write_bvh
 
 
 def params_to_bvh(body, params, fps: float, name: str = "gltrack") -> Bvh:
