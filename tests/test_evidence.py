@@ -251,7 +251,7 @@ def test_nearest_part_rule_does_not_swap_limbs(body, ep_problem):
 
 
 def test_training_ranges_are_disjoint_from_the_bench():
-    from gltrack.bench.depth import CLIPS, TRAIN_RANGES, bench_range
+    from gltrack.data.depth_clips import CLIPS, TRAIN_RANGES, bench_range
 
     assert set(TRAIN_RANGES) == set(CLIPS)
     for clip, ranges in TRAIN_RANGES.items():

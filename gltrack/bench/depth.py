@@ -1,10 +1,10 @@
 """``gltrack bench depth``: accuracy and speed of the depth trackers (Ganapathi et al. 2010).
 
 Datasets are synthesised with ``gltrack synth --rig depth`` (SR4000-like 176x144 ToF camera,
-default noise, 30 frames/s) from the CMU clips in ``../shared/mocap`` (:data:`CLIPS`: a walk
-towards the camera, one-legged hops, salsa; source ranges avoid the clips' calibration jumps and
-the salsa's mocap glitches near source frames 300-365). Each clip is tracked from the ground-truth
-first pose by
+default noise, 30 frames/s) from the CMU clips in ``../shared/mocap``
+(:data:`gltrack.data.depth_clips.CLIPS`: a walk towards the camera, one-legged hops, salsa; source
+ranges avoid the clips' calibration jumps and the salsa's mocap glitches near source frames
+300-365). Each clip is tracked from the ground-truth first pose by
 
 * ``hc`` (model-based hill climbing), ``ep`` (evidence propagation without climbing the
   prediction) and ``hc+ep`` (the paper's full system),
@@ -16,7 +16,8 @@ tracked (<= 0.1 m) and failed (>= 0.3 m), mean joint error (mm), frames per seco
 evaluations per frame.
 
 Recovery test (smoothed likelihood, ``hc`` and ``hc+ep``): at frame :data:`PERTURB_AT` the
-tracker's state of one arm is shifted by 0.5 rad on every DOF (option ``perturb_frame``); the
+tracker's state of one arm is shifted by 0.5 rad on every DOF (a runner hook,
+:func:`gltrack.bench.faults.limb_fault`); the
 figure is the number of frames until the mean error of that arm's markers is back under 0.1 m
 (0 = recovered within the perturbed frame), or None with "not recovered within N frames".
 
@@ -28,34 +29,19 @@ from __future__ import annotations
 
 import logging
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from gltrack.data.depth_clips import CLIPS, FPS, bench_range, synth_depth
+
 from . import machine_name, shared_dir
+from .faults import limb_fault
 
 log = logging.getLogger(__name__)
 
-#: clip -> (BVH file in shared/mocap, first source frame at 120 frames/s)
-CLIPS = {
-    "walk": ("cmu_02_01_walk.bvh", 8),
-    "hop": ("cmu_131_03_start_hop_stop_max_metres.bvh", 760),
-    "salsa": ("cmu_60_10_salsa_daz_metres.bvh", 400),
-}
-SOURCE_FPS = 120
-#: clip -> source-frame ranges [first, last) for training the part classifier (``gltrack
-#: learn-parts --mocap``), disjoint from the bench's frames of every clip so no bench frame or
-#: its neighbours is seen in training (the salsa's glitches near 300-365 are avoided too).
-TRAIN_RANGES = {
-    "walk": ((260, 344),),
-    "hop": ((100, 740), (1020, 1240)),
-    "salsa": ((0, 280), (660, 1180)),
-}
-FPS = 30.0
 METHODS = ("hc", "ep", "hc+ep")
 LIKELIHOODS = {"pixel": False, "smoothed": True}
 PERTURB_AT = 10
@@ -71,51 +57,6 @@ LIMB_MARKERS = {
 TARGET_MEAN_M = 0.05
 TARGET_FAILED = 0.01
 NO_WORSE_TOL_M = 0.002
-
-
-def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) -> Path:
-    """Synthesise ``frames`` depth frames at 30 frames/s from source frame ``first`` (subprocess:
-    the simulator needs its own GL platform)."""
-    last = first + int(round(frames * SOURCE_FPS / FPS))
-    cmd = [sys.executable, "-m", "gltrack", "-q", "synth", "--motion", str(bvh), "--rig", "depth",
-           "--out", str(out), "--frames", f"{first}:{last}", "--fps", str(FPS), "--seed", str(seed),
-           "--overwrite"]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"gltrack synth failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
-    return out
-
-
-def bench_range(clip: str, frames: int = 60) -> tuple[int, int]:
-    """Source frames [first, last) of ``clip`` that a bench of ``frames`` frames uses."""
-    first = CLIPS[clip][1]
-    return first, first + int(round(frames * SOURCE_FPS / FPS))
-
-
-def synth_training_sets(mocap: Path, out: Path, seed: int = 0) -> list[Path]:
-    """Depth datasets of :data:`TRAIN_RANGES` for the part classifier, one per range.
-
-    Parameters
-    ----------
-    mocap : path, folder with the BVH files of :data:`CLIPS`
-    out : path, folder to create the datasets in
-    seed : int, sensor-noise seed of the first dataset (the i-th uses ``seed + i``)
-
-    Returns
-    -------
-    list of dataset folders
-    """
-    mocap, out = Path(mocap), Path(out)
-    paths = []
-    for clip, ranges in TRAIN_RANGES.items():
-        bvh = mocap / CLIPS[clip][0]
-        if not bvh.is_file():
-            raise ValueError(f"{bvh}: BVH clip of {clip!r} not found (--mocap folder)")
-        for a, b in ranges:
-            frames = int((b - a) * FPS / SOURCE_FPS)
-            paths.append(synth_depth(bvh, out / f"{clip}_{a}_{b}", a, frames,
-                                     seed=seed + len(paths)))
-    return paths
 
 
 def _marker_index(names, wanted):
@@ -140,14 +81,15 @@ def recovery_frames(errors, start: int, threshold: float = 0.1):
     return int(ok[0]) if len(ok) else None
 
 
-def _run(ds, method, opts, out, ctx):
+def _run(ds, method, opts, out, ctx, hooks=()):
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import load_results
     from gltrack.eval.metrics import evaluate
     from gltrack.track.runner import track
 
     t0 = time.perf_counter()
-    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx)
+    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx,
+                   hooks=hooks)
     wall = time.perf_counter() - t0
     res = load_results(out)
     gt = Dataset.open(ds).groundtruth()
@@ -254,7 +196,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
             result["clips"][clip] = {"skipped": f"{bvh} not found"}
             continue
         ds = synth_depth(bvh, work / clip / "data", first, n)
-        entry = {"source_frames": [first, first + int(round(n * SOURCE_FPS / FPS))],
+        entry = {"source_frames": list(bench_range(clip, n)),
                  "runs": {}, "recovery": {}}
         unperturbed = {}
         for lik, smooth in liks.items():
@@ -266,9 +208,9 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
                     unperturbed[method] = limb_error(res, gt, PERTURB_PART)
                 log.info("%s %s/%s: %s", clip, method, lik, row)
         for method in ("hc", "hc+ep"):
-            opts = {"perturb_frame": PERTURB_AT, "perturb_part": PERTURB_PART,
-                    "perturb_rad": PERTURB_RAD}
-            row, res, gt = _run(ds, method, opts, work / clip / f"{method}_recovery", ctx)
+            fault = limb_fault(PERTURB_AT, PERTURB_PART, PERTURB_RAD)
+            row, res, gt = _run(ds, method, {}, work / clip / f"{method}_recovery", ctx,
+                                hooks=[fault])
             err = limb_error(res, gt, PERTURB_PART)
             start = PERTURB_AT - int(res["frame"][0])
             k = recovery_frames(err, start)

@@ -2,12 +2,12 @@
 
 The shipped model (``gltrack/assets/parts.npz``) is rebuilt by
 ``gltrack learn-parts --mocap ../shared/mocap --out gltrack/assets/parts.npz --seed 0``: depth
-datasets synthesised from the bench's CMU clips at source frames disjoint from the bench's
-(:data:`gltrack.bench.depth.TRAIN_RANGES`) plus ``--frames`` (400) rendered random poses. Real
-motion (a spin, a dance, turning away from the camera, 3-5 m away) teaches the patch classifier
-what the random poses at 3.6 m alone did not (that model found the head at 38 % and the hands at
-39 % of the hop clip's head and hand interest points); the random poses keep it general (trained
-on the clips alone it missed the hand of the unit tests' procedural subject).
+datasets synthesised from the depth bench's CMU clips at source frames disjoint from the
+bench's (:data:`gltrack.data.depth_clips.TRAIN_RANGES`) plus ``--frames`` (400) rendered random
+poses. Real motion (a spin, a dance, turning away from the camera, 3-5 m away) teaches the patch
+classifier what the random poses at 3.6 m alone did not (that model found the head at 38 % and
+the hands at 39 % of the hop clip's head and hand interest points); the random poses keep it
+general (trained on the clips alone it missed the hand of the unit tests' procedural subject).
 """
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ def add_arguments(p):
     p.add_argument("--mocap", metavar="DIR", default=None,
                    help="folder with the bench's CMU clips (shared/mocap): synthesise depth "
                         "datasets of their training ranges (disjoint from the bench frames, "
-                        "gltrack.bench.depth.TRAIN_RANGES) and train on them; --seed seeds "
-                        "the sensor noise")
+                        "gltrack.data.depth_clips.TRAIN_RANGES) and train on them; --seed "
+                        "seeds the sensor noise")
     p.add_argument("--out", required=True, metavar="FILE", help="model file to write (.npz)")
     p.add_argument("--heldout", type=float, default=0.2, metavar="FRAC",
                    help="fraction of each dataset's frames (its last ones, so neighbouring "
@@ -102,7 +102,7 @@ def run(args):
     if args.mocap:
         import tempfile
 
-        from gltrack.bench.depth import synth_training_sets
+        from gltrack.data.depth_clips import synth_training_sets
 
         if args.data:
             raise UsageError("--mocap and --data are exclusive")
