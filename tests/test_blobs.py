@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from gltrack.bench.vlmm import render_masks, ring_cameras
+from gltrack.bench.rigs import ring_cameras
+from gltrack.bench.vlmm import render_masks
 from gltrack.body.model import BodyModel
 from gltrack.observe.blobs import (BlobModel, Blobs, fit_blobs, gaussian_kl, mixture_kl,
                                    mixture_loglik)

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from gltrack.bench.multiview import method_configs, render_dataset, ring_cameras
+from gltrack.bench.multiview import RING, method_configs, render_dataset
+from gltrack.bench.rigs import ring_cameras
 from gltrack.body.model import BodyModel
 from gltrack.cli import main
 from gltrack.eval.metrics import EVAL_JOINTS, common_names, mean_joint_error
@@ -39,7 +40,7 @@ def dataset(tmp_path_factory):
     body = BodyModel.build()
     P = motion(body, N_FRAMES)
     out = tmp_path_factory.mktemp("mv") / "ds"
-    cams = ring_cameras(4, (128, 96), radius=3.0, target=(0.1, 0.9, 0.2))
+    cams = ring_cameras((0.1, 0.9, 0.2), **dict(RING, radius=3.0))
     render_dataset(out, body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
     return out, body, P
 
@@ -181,7 +182,7 @@ def periodic(tmp_path_factory):
     model.save(root / "model.npz")
     P = periodic_motion(body, 8, fps=FPS, phase=1.0, period=0.8)
     P[:, 0] += 0.1
-    cams = ring_cameras(4, (128, 96), radius=3.0, target=(0.1, 0.9, 0.0))
+    cams = ring_cameras((0.1, 0.9, 0.0), **dict(RING, radius=3.0))
     render_dataset(root / "ds", body, P, cams, FPS, np.random.default_rng(4), mask_flip=0.002)
     return root, body, P
 

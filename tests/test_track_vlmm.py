@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import gltrack.track.vlmm as tv
-from gltrack.bench.vlmm import make_multiview_dataset, periodic_motion, ring_cameras
+from gltrack.bench.rigs import ring_cameras
+from gltrack.bench.vlmm import make_multiview_dataset, periodic_motion
 from gltrack.body.model import BodyModel
 from gltrack.cli import main
 from gltrack.data.dataset import Dataset

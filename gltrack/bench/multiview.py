@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_name, shared_dir
+from .rigs import ring_cameras
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +95,11 @@ def synth(bvh: Path, out: Path, frames: tuple, *, fps: float = 30.0, seed: int =
     return out
 
 
+#: The fallback datasets' camera ring (:func:`gltrack.bench.rigs.ring_cameras` arguments): all
+#: cameras 3.5 m from the subject at 1.8 m height, the first at 45 degrees azimuth.
+RING = {"radius": 3.5, "height": 1.8, "fov_y_deg": 50.0, "first_angle": 0.25 * np.pi,
+        "height_step": 0.0}
+
 #: BGR clothing colours by body part of :data:`gltrack.body.mesh.PARTS`.
 PART_COLOURS = {
     "head": (60, 110, 190), "torso": (40, 40, 200), "pelvis": (120, 60, 30),
@@ -102,17 +108,6 @@ PART_COLOURS = {
     "l_thigh": (120, 60, 30), "l_shin": (120, 60, 30), "l_foot": (30, 30, 30),
     "r_thigh": (120, 60, 30), "r_shin": (120, 60, 30), "r_foot": (30, 30, 30),
 }
-
-
-def ring_cameras(n: int = 4, size=(128, 96), radius: float = 3.5, height: float = 1.8,
-                 target=(0.0, 0.9, 0.0), fov_y_deg: float = 50.0):
-    """``n`` colour cameras on a circle around ``target``, looking at it."""
-    from gltrack.camera import look_at_camera
-
-    tx, ty, tz = target
-    return [look_at_camera(f"cam{i}", (tx + radius * np.sin(a), height, tz + radius * np.cos(a)),
-                           target, size[0], size[1], fov_y_deg)
-            for i, a in enumerate(np.linspace(0.25 * np.pi, 2.25 * np.pi, n, endpoint=False))]
 
 
 def render_dataset(out, body, params, cameras, fps: float, rng: np.random.Generator, *,
@@ -174,7 +169,7 @@ def _fallback_dataset(bvh: Path, out: Path, frames: tuple, fps: float, seed: int
     skeleton, _, params, fps = load_motion(bvh, "full", fps=fps, frames=frames)
     body = BodyModel.build(skeleton, "full")
     pelvis = body.joints(params[:1])[0, 0]
-    cams = ring_cameras(4, size, target=(pelvis[0], 0.9, pelvis[2]))
+    cams = ring_cameras((pelvis[0], 0.9, pelvis[2]), 4, width=size[0], height_px=size[1], **RING)
     return render_dataset(out, body, params, cams, fps, np.random.default_rng(seed), overwrite=True)
 
 

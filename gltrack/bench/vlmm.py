@@ -37,20 +37,6 @@ TILE = 64
 
 
 # ------------------------------------------------------------------------ synthetic data
-def ring_cameras(target, n: int = 4, radius: float = 4.0, height: float = 2.0, width: int = 128,
-                 height_px: int = 96, fov_y_deg: float = 55.0):
-    """``n`` colour cameras on a circle around ``target`` (3,), metres, looking at it."""
-    from gltrack.camera import look_at_camera
-
-    t = np.asarray(target, dtype=np.float64)
-    cams = []
-    for i in range(n):
-        a = 2 * np.pi * i / n + 0.4
-        eye = (t[0] + radius * np.sin(a), height + 0.3 * (i % 2), t[2] + radius * np.cos(a))
-        cams.append(look_at_camera(f"cam{i}", eye, t, width, height_px, fov_y_deg))
-    return cams
-
-
 def render_masks(body, params, cameras) -> list:
     """Foreground masks of the skinned body: list over frames of lists over cameras of (H, W)
     bool (CPU reference rasteriser)."""
