@@ -50,8 +50,7 @@ def add_arguments(p):
 def _dataset_frames(path, frames):
     """TrainingFrames of the given frame indices of every depth camera of a dataset."""
     from gltrack.data.dataset import Dataset
-    from gltrack.evidence.classifier import TrainingFrame
-    from gltrack.evidence.parts import parts_from_groundtruth
+    from gltrack.evidence.parts import TrainingFrame, parts_from_groundtruth
 
     ds = Dataset.open(path)
     try:

@@ -13,38 +13,19 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, NamedTuple
+from typing import Iterable
 
 import numpy as np
 from scipy.optimize import minimize
 
 from .detect import foreground_mask, geodesic_extrema
 from .features import n_features, patch_features
-from .parts import CLASSES, PART_CLASSES, PART_NAMES, Detections
+from .parts import CLASSES, PART_CLASSES, PART_NAMES, Detections, TrainingFrame
 
 log = logging.getLogger(__name__)
 
 FORMAT = "gltrack-parts"
 VERSION = 1
-
-
-class TrainingFrame(NamedTuple):
-    """One depth frame with ground truth.
-
-    Attributes
-    ----------
-    depth : (H, W) float, metres, 0 = invalid
-    camera : gltrack.camera.Camera
-    parts : (5, 3) float, world positions of :data:`PART_NAMES`, metres (NaN = unknown)
-    mask : (H, W) bool or None, foreground
-    background : (H, W) float or None, empty-scene depth, metres
-    """
-
-    depth: np.ndarray
-    camera: object
-    parts: np.ndarray
-    mask: np.ndarray | None = None
-    background: np.ndarray | None = None
 
 
 @dataclass

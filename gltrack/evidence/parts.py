@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -104,6 +105,27 @@ class PartModel:
     def part_fns(self) -> dict:
         """Every part's function, keyed by :data:`PART_NAMES`."""
         return {n: self.part_fn(n) for n in PART_NAMES}
+
+
+class TrainingFrame(NamedTuple):
+    """One depth frame with ground truth.
+
+    Training and test data of the part classifier (:mod:`gltrack.evidence.classifier`).
+
+    Attributes
+    ----------
+    depth : (H, W) float, metres, 0 = invalid
+    camera : gltrack.camera.Camera
+    parts : (5, 3) float, world positions of :data:`PART_NAMES`, metres (NaN = unknown)
+    mask : (H, W) bool or None, foreground
+    background : (H, W) float or None, empty-scene depth, metres
+    """
+
+    depth: np.ndarray
+    camera: object
+    parts: np.ndarray
+    mask: np.ndarray | None = None
+    background: np.ndarray | None = None
 
 
 def parts_from_groundtruth(gt: dict, where: str = "groundtruth") -> tuple[np.ndarray, float]:

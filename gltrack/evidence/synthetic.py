@@ -14,7 +14,7 @@ from gltrack.body.kinematics import Kinematics
 from gltrack.body.mesh import make_body_mesh
 from gltrack.body.skeleton import default_skeleton
 
-from .parts import PartModel
+from .parts import PartModel, TrainingFrame
 
 log = logging.getLogger(__name__)
 
@@ -80,11 +80,9 @@ def render_frames(rng: np.random.Generator, n_frames: int, *, camera=None, noise
 
     Returns
     -------
-    list of :class:`gltrack.evidence.classifier.TrainingFrame`
+    list of :class:`gltrack.evidence.parts.TrainingFrame`
     """
     from gltrack.render.reference import render_candidates
-
-    from .classifier import TrainingFrame
 
     sk = skeleton or default_skeleton()
     dofs = make_dofs(sk, "full")
