@@ -26,13 +26,6 @@ SECONDS = 4.0
 MULTIVIEW_OPTIONS = {"particles": 100}
 
 
-def _pick(methods, *names):
-    for n in names:
-        if n in methods:
-            return n
-    return None
-
-
 def run_demo(out="gltrack-demo", *, seed: int = 0, progress: bool = True, overwrite: bool = True,
              seconds: float = SECONDS, fps: float = FPS, rigs=("depth", "multiview")) -> dict:
     """Run the demo into ``out``; returns the summary dict (also written to ``summary.json``)."""
@@ -44,22 +37,18 @@ def run_demo(out="gltrack-demo", *, seed: int = 0, progress: bool = True, overwr
     from gltrack.eval.metrics import evaluate
     from gltrack.eval.overlay import render_overlay
     from gltrack.eval.report import plot_comparison, write_json
-    from gltrack.track.runner import available_methods, track
+    from gltrack.track.runner import track
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     body = BodyModel.build()
     params = performance(body, fps=fps, seconds=seconds)
-    methods = available_methods()
-    plan = {"depth": _pick(methods, "hc+ep", "hc"), "multiview": _pick(methods, "hps", "apf", "sir")}
+    plan = {"depth": "hc+ep", "multiview": "hps"}
     summary = {"frames": int(len(params)), "fps": fps, "rigs": {}, "files": {}}
     metrics_by_rig = {}
     for rig in rigs:
         method = plan[rig]
-        if method is None:
-            log.warning("no tracker for the %s rig is installed; skipped", rig)
-            continue
         ds_dir, res_dir = out / f"{rig}_dataset", out / f"{rig}_result"
         t0 = time.perf_counter()
         synthesize_in_subprocess(params, body.skeleton, body.dofs, fps, rig, str(ds_dir), seed=seed,

@@ -6,8 +6,8 @@ from gltrack.body.dofs import make_dofs
 from gltrack.body.skeleton import default_skeleton
 from gltrack.sample import (RESAMPLERS, AnnealedParticleFilter, HierarchicalSampler,
                             PartitionedSampler, SIRFilter, StateSpace, Weights, anneal,
-                            annealing_exponent, bandouch_weights, default_partitions, diffuse,
-                            ess, fine_partitions, layer_noise)
+                            annealing_exponent, bandouch_weights, cost_weights,
+                            default_partitions, diffuse, ess, fine_partitions, layer_noise)
 
 SKEL = default_skeleton()
 DOFS = make_dofs(SKEL, "full")
@@ -370,3 +370,17 @@ def test_predict_fn_output_is_validated_and_clamped():
         SIRFilter(SPACE).step(p, weight_fn, rng, predict_fn=lambda x, r: x * np.nan)
     far = SIRFilter(SPACE).step(p, weight_fn, rng, predict_fn=lambda x, r: x + 100.0)
     assert np.all(far.final_particles <= SPACE.upper) and np.all(far.final_particles >= SPACE.lower)
+
+
+def test_cost_weights_are_monotone_and_never_underflow():
+    """The one cost -> weight mapping: best cost -> log-weight 0, monotone, and a cost 2000
+    nats worse keeps a finite log-weight (a raw exp would underflow to a zero weight)."""
+    c = np.array([3.0, 1.0, 2000.0, 1.0 + 1e-9])
+    w = cost_weights(c)
+    assert w.lw[1] == 0.0 and w.lw[3] <= 0.0
+    assert np.all(np.diff(w.lw[np.argsort(c)]) <= 0)
+    assert np.all(np.isfinite(w.lw)) and w.lw[2] == pytest.approx(-1999.0)
+    assert np.all(cost_weights(np.full(5, 7.0)).lw == 0.0)
+    np.testing.assert_allclose(cost_weights(c, scale=2.0).lw, w.lw / 2.0)
+    with pytest.raises(ValueError, match="finite"):
+        cost_weights([1.0, np.nan])

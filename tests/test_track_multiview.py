@@ -121,29 +121,28 @@ def test_method_configs_share_the_budget():
 
 def test_background_subtraction_foreground_matches_silhouettes(dataset):
     from gltrack.data.dataset import Dataset
-    from gltrack.track.multiview import MultiviewObservation, MultiviewOptions
+    from gltrack.observe.multiview import MultiviewObservation
 
     path, _, _ = dataset
     ds = Dataset.open(path)
-    obs = MultiviewObservation(ds, MultiviewOptions(foreground="background"),
-                               np.random.default_rng(0))
+    obs = MultiviewObservation(ds, "background", np.random.default_rng(0))
     assert obs.mode == "background"
     images, masks = obs(2)
     for c, m in enumerate(masks):
         gt = ds.gtmask(2, c)
         iou = np.count_nonzero(m & gt) / np.count_nonzero(m | gt)
         assert iou > 0.7, (c, iou)
-    assert MultiviewObservation(ds, MultiviewOptions(), None).mode == "dataset"
+    assert MultiviewObservation(ds, "auto", None).mode == "dataset"
 
 
 def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
     from gltrack.data.dataset import Dataset
     from gltrack.sample import bandouch_weights
-    from gltrack.track.multiview import HPSTracker, MultiviewOptions
+    from gltrack.track.multiview import HpsOptions, HPSTracker
 
     path, body, P = dataset
     ds = Dataset.open(path)
-    tr = HPSTracker(ds, body, ctx, MultiviewOptions(particles=12), np.random.default_rng(0))
+    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12), np.random.default_rng(0))
     try:
         tr.start(0, P[0])
         tr.observe(3)
@@ -204,9 +203,9 @@ def test_prior_option_is_validated(periodic, tmp_path, capsys):
 
     root, _, _ = periodic
     with pytest.raises(ValueError, match="prior_model"):
-        MultiviewOptions(prior="vlmm")
+        MultiviewOptions(prior="vlmm").validate()
     with pytest.raises(ValueError, match="prior"):
-        MultiviewOptions(prior="kalman")
+        MultiviewOptions(prior="kalman").validate()
     cfg = tmp_path / "p.toml"
     for text, needle in (("prior = \"vlmm\"\n", "prior_model"),
                          ("prior = \"vlmm\"\nprior_model = "
@@ -222,20 +221,19 @@ def test_sigma_scale_and_full_resolution_appearance(dataset, ctx):
     with the frame rate); the default appearance initialisation at
     camera resolution gives colours to many more triangles than sampling the 64-pixel tiles."""
     from gltrack.data.dataset import Dataset
-    from gltrack.track.multiview import HPSTracker, MultiviewOptions, make_sampler
+    from gltrack.track.multiview import AnnealedOptions, HpsOptions, HPSTracker, make_sampler
 
     path, body, P = dataset
-    a, _ = make_sampler("hps", body.dofs, FPS, MultiviewOptions())
-    b, _ = make_sampler("ps", body.dofs, FPS, MultiviewOptions(sigma_scale=0.7))
-    c, _ = make_sampler("hps", body.dofs, FPS, MultiviewOptions(sigma_scale=0))
+    a, _ = make_sampler("hps", body.dofs, FPS, HpsOptions())
+    b, _ = make_sampler("ps", body.dofs, FPS, AnnealedOptions(sigma_scale=0.7))
+    c, _ = make_sampler("hps", body.dofs, FPS, HpsOptions(sigma_scale=0))
     np.testing.assert_allclose(a.space.sigma, body.dofs.sigma_at(FPS))
     np.testing.assert_allclose(b.space.sigma, 0.7 * body.dofs.sigma_at(FPS))
     np.testing.assert_allclose(c.space.sigma, body.dofs.sigma30 * np.sqrt(30.0 / FPS))
     ds = Dataset.open(path)
     seen = {}
     for init in ("tile", "full"):
-        tr = HPSTracker(ds, body, ctx, MultiviewOptions(particles=6, tile=16,
-                                                        appearance_init=init),
+        tr = HPSTracker(ds, body, ctx, HpsOptions(particles=6, tile=16, appearance_init=init),
                         np.random.default_rng(0))
         try:
             tr.start(0, P[0])

@@ -4,6 +4,7 @@ import json
 import numpy as np
 import pytest
 
+import gltrack.motion.vlmm_prior as vp
 import gltrack.track.vlmm as tv
 from gltrack.bench.rigs import ring_cameras
 from gltrack.bench.vlmm import make_multiview_dataset, periodic_motion
@@ -81,7 +82,7 @@ def test_prior_predicts_the_learnt_motion_better_than_diffusion(setup):
     _, body, model, _ = setup
     seq = periodic_motion(body, 40, phase=2.0, period=PERIOD)
     rng = np.random.default_rng(5)
-    prior = tv.VlmmPrior(model, body.dofs, 30.0, lam=0.5)
+    prior = vp.VlmmPrior(model, body.dofs, 30.0, lam=0.5)
     X = model.features(seq)
     labels = model.label(X)
     sigma = body.dofs.sigma_at(30.0)
@@ -101,7 +102,7 @@ def test_prior_predicts_the_learnt_motion_better_than_diffusion(setup):
 def test_prior_bookkeeping(setup):
     _, body, model, test = setup
     rng = np.random.default_rng(0)
-    prior = tv.vlmm_prior(setup[0] / "model.npz", body.dofs, 30.0)
+    prior = vp.vlmm_prior(setup[0] / "model.npz", body.dofs, 30.0)
     P = np.repeat(test[:1], 50, axis=0)
     prior.reset(P, rng)
     assert np.all(prior.clusters() >= 0)
@@ -124,11 +125,11 @@ def test_prior_rejects_a_model_of_other_dofs(setup):
     _, _, model, _ = setup
     body_full = BodyModel.build(preset="full", lod=0)
     # 25-preset names are a subset of full: mapped by name, the rest diffused
-    prior = tv.VlmmPrior(model, body_full.dofs, 30.0)
+    prior = vp.VlmmPrior(model, body_full.dofs, 30.0)
     assert prior.other.size == body_full.dofs.size - 6 - model.n_angles
     body38 = BodyModel.build(preset="38", lod=0)  # no ankles
     with pytest.raises(ValueError, match="--dof 25"):
-        tv.VlmmPrior(model, body38.dofs, 30.0)
+        vp.VlmmPrior(model, body38.dofs, 30.0)
 
 
 def test_recovery_from_a_lost_start(setup, ctx):

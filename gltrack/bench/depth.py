@@ -16,7 +16,8 @@ tracked (<= 0.1 m) and failed (>= 0.3 m), mean joint error (mm), frames per seco
 evaluations per frame.
 
 Recovery test (smoothed likelihood, ``hc`` and ``hc+ep``): at frame :data:`PERTURB_AT` the
-tracker's state of one arm is shifted by 0.5 rad on every DOF (option ``perturb_frame``); the
+tracker's state of one arm is shifted by 0.5 rad on every DOF (a runner hook,
+:func:`gltrack.bench.faults.limb_fault`); the
 figure is the number of frames until the mean error of that arm's markers is back under 0.1 m
 (0 = recovered within the perturbed frame), or None with "not recovered within N frames".
 
@@ -37,6 +38,7 @@ import numpy as np
 from gltrack.data.depth_clips import CLIPS, FPS, bench_range, synth_depth
 
 from . import machine_name, shared_dir
+from .faults import limb_fault
 
 log = logging.getLogger(__name__)
 
@@ -79,14 +81,15 @@ def recovery_frames(errors, start: int, threshold: float = 0.1):
     return int(ok[0]) if len(ok) else None
 
 
-def _run(ds, method, opts, out, ctx):
+def _run(ds, method, opts, out, ctx, hooks=()):
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import load_results
     from gltrack.eval.metrics import evaluate
     from gltrack.track.runner import track
 
     t0 = time.perf_counter()
-    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx)
+    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx,
+                   hooks=hooks)
     wall = time.perf_counter() - t0
     res = load_results(out)
     gt = Dataset.open(ds).groundtruth()
@@ -205,9 +208,9 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
                     unperturbed[method] = limb_error(res, gt, PERTURB_PART)
                 log.info("%s %s/%s: %s", clip, method, lik, row)
         for method in ("hc", "hc+ep"):
-            opts = {"perturb_frame": PERTURB_AT, "perturb_part": PERTURB_PART,
-                    "perturb_rad": PERTURB_RAD}
-            row, res, gt = _run(ds, method, opts, work / clip / f"{method}_recovery", ctx)
+            fault = limb_fault(PERTURB_AT, PERTURB_PART, PERTURB_RAD)
+            row, res, gt = _run(ds, method, {}, work / clip / f"{method}_recovery", ctx,
+                                hooks=[fault])
             err = limb_error(res, gt, PERTURB_PART)
             start = PERTURB_AT - int(res["frame"][0])
             k = recovery_frames(err, start)

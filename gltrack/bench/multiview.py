@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_name, shared_dir
-from .rigs import ring_cameras
 
 log = logging.getLogger(__name__)
 
@@ -73,12 +72,6 @@ def method_configs(budget: int, n_partitions: int = 10) -> dict:
 # datasets
 
 
-def _has_simulator() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("gltrack.cli.synth") is not None
-
-
 def synth(bvh: Path, out: Path, frames: tuple, *, fps: float = 30.0, seed: int = 0,
           size=(320, 240), extra=()) -> Path:
     """Run ``gltrack synth --rig multiview`` in a subprocess (it needs its own GL platform).
@@ -95,8 +88,9 @@ def synth(bvh: Path, out: Path, frames: tuple, *, fps: float = 30.0, seed: int =
     return out
 
 
-#: The fallback datasets' camera ring (:func:`gltrack.bench.rigs.ring_cameras` arguments): all
-#: cameras 3.5 m from the subject at 1.8 m height, the first at 45 degrees azimuth.
+#: The camera ring of the datasets the tests draw with :func:`render_dataset`
+#: (:func:`gltrack.bench.rigs.ring_cameras` arguments): all cameras 3.5 m from the subject at
+#: 1.8 m height, the first at 45 degrees azimuth.
 RING = {"radius": 3.5, "height": 1.8, "fov_y_deg": 50.0, "first_angle": 0.25 * np.pi,
         "height_step": 0.0}
 
@@ -160,17 +154,6 @@ def render_dataset(out, body, params, cameras, fps: float, rng: np.random.Genera
                 w.write_gtmask(f, c, on)
         w.write_groundtruth(body.joints(P), list(body.skeleton.names), body.marker_positions(P), P)
     return Path(out)
-
-
-def _fallback_dataset(bvh: Path, out: Path, frames: tuple, fps: float, seed: int, size) -> Path:
-    from gltrack.body.model import BodyModel
-    from gltrack.motion.retarget import load_motion
-
-    skeleton, _, params, fps = load_motion(bvh, "full", fps=fps, frames=frames)
-    body = BodyModel.build(skeleton, "full")
-    pelvis = body.joints(params[:1])[0, 0]
-    cams = ring_cameras((pelvis[0], 0.9, pelvis[2]), 4, width=size[0], height_px=size[1], **RING)
-    return render_dataset(out, body, params, cams, fps, np.random.default_rng(seed), overwrite=True)
 
 
 def _project_pose(x_full, names_full, dofs) -> np.ndarray:
@@ -256,9 +239,7 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
     if shared is None:
         res["skipped"].append("../shared (or GLTRACK_SHARED) is absent: no mocap clips")
         return res
-    simulator = _has_simulator()
-    res["data"] = "gltrack synth --rig multiview" if simulator else \
-        "CPU reference renderer (gltrack synth not installed)"
+    res["data"] = "gltrack synth --rig multiview"
     own_dir = workdir is None
     work = Path(tempfile.mkdtemp(prefix="gltrack-bench-mv-") if own_dir else workdir)
     work.mkdir(parents=True, exist_ok=True)
@@ -274,17 +255,11 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
         src = (first, first + 4 * n_frames)  # 120 frames/s source -> n_frames at 30 frames/s
         ds = work / f"{clip}_ds"
         t0 = time.perf_counter()
-        if simulator:
-            synth(bvh, ds, src, seed=seed)
-        else:
-            _fallback_dataset(bvh, ds, src, 30.0, seed, (160, 120))
+        synth(bvh, ds, src, seed=seed)
         log.info("%s: dataset in %.1f s", clip, time.perf_counter() - t0)
         res["clips"][clip] = _bench_clip(ds, work / clip, budget, presets, ctx, seed)
     if environment and "walk" in CLIPS:
-        if not simulator:
-            res["skipped"].append("environment cases: need gltrack synth (--occluder/--distractor)")
-        else:
-            res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
+        res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
         if own_dir and not keep:
             shutil.rmtree(work, ignore_errors=True)
     res["seconds"] = round(time.perf_counter() - t_start, 1)

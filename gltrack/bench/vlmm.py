@@ -16,7 +16,7 @@
 4. The VLMM prior driving the multi-view tracker's GPU silhouette likelihood (``sir --prior
    vlmm``, 200 particles) against HPS with 800.
 5. Recovery: at tracked frame :data:`FAIL_AT` the particle set is turned by 1.5 rad and moved by
-   0.5 m (:func:`gltrack.track.blobfilter.inject_failure`); frames until the RMS joint error is
+   0.5 m (:func:`gltrack.bench.faults.set_fault`); frames until the RMS joint error is
    back under :data:`RECOVERED_M`, for ``vlmm`` (automatic recovery) and ``condensation``.
 
 ``--quick`` uses 20 frames and smaller particle counts. The synthetic-data helpers at the top are
@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from .faults import set_fault
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +112,8 @@ SILHOUETTE_RUNS = {
 }
 #: failure injected at this tracked frame in the recovery runs
 FAIL_AT = 10
+#: the injected failure: the particle set turned by this many radians and moved this far (m)
+FAIL_RAD, FAIL_SHIFT = 1.5, 0.5
 RECOVERED_M = 0.1
 TARGET_FPS = 10.0
 
@@ -125,7 +129,7 @@ def rms_joint_error(res, gt) -> np.ndarray:
     return np.sqrt(np.mean(np.sum(d * d, axis=-1), axis=1))
 
 
-def _track_run(ds, method, opts, out, seed):
+def _track_run(ds, method, opts, out, seed, hooks=()):
     """Track ``ds`` with ``method`` into ``out``; returns (row dict, per-frame RMS errors)."""
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import load_results
@@ -133,7 +137,8 @@ def _track_run(ds, method, opts, out, seed):
     from gltrack.track.runner import track
 
     t0 = time.perf_counter()
-    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, seed=seed)
+    timing = track(ds, method, out, options=opts, overwrite=True, progress=False, seed=seed,
+                   hooks=hooks)
     wall = time.perf_counter() - t0
     res = load_results(out)
     with Dataset.open(ds) as d:
@@ -232,8 +237,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None) -> dict:
                     (BLOB_RUNS[quick][0][0], "condensation",
                      dict(BLOB_RUNS[quick][0][2]))]
         for label, method, opts in rec_runs:
-            opts["perturb_frame"] = FAIL_AT
-            row, rms = _track_run(ds, method, opts, tmp / f"recovery_{label}", seed)
+            row, rms = _track_run(ds, method, opts, tmp / f"recovery_{label}", seed,
+                                  hooks=[set_fault(FAIL_AT, FAIL_RAD, FAIL_SHIFT)])
             after = rms[FAIL_AT:]
             ok = np.nonzero(after < RECOVERED_M)[0]
             out["recovery"][label] = {

@@ -7,24 +7,16 @@ stderr unless ``--debug`` is given.
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import sys
 
-COMMANDS = ("info", "demo", "synth", "track", "eval", "learn", "learn-parts", "bench", "export", "render")
+from . import bench, demo, eval, export, info, learn, learn_parts, render, synth, track
+from .common import UsageError, check_output_file
 
+#: the sub-commands, in the order ``--help`` lists them
+COMMANDS = (info, demo, synth, track, eval, learn, learn_parts, bench, export, render)
 
-class UsageError(Exception):
-    """Bad command-line usage (exit code 2)."""
-
-
-def _load(name):
-    try:
-        return importlib.import_module(f"gltrack.cli.{name.replace('-', '_')}")
-    except ModuleNotFoundError as exc:
-        if exc.name == f"gltrack.cli.{name.replace('-', '_')}":
-            return None
-        raise
+__all__ = ["COMMANDS", "UsageError", "build_parser", "check_output_file", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,10 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     verb.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors; no progress bars")
     verb.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        mod = _load(name)
-        if mod is None:
-            continue
+    for mod in COMMANDS:
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP,
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter)
         mod.add_arguments(p)
@@ -73,13 +62,3 @@ def main(argv=None) -> int:
             raise
         print(f"gltrack {args.command}: error: {exc}", file=sys.stderr)
         return 1
-
-
-def check_output_file(out, fps, usage_error):
-    """Shared ``--out FILE`` / ``--fps`` validation of the export and render commands."""
-    if out.is_dir():
-        raise usage_error(f"--out {out} is a folder, not a file")
-    if not out.parent.is_dir():
-        raise usage_error(f"--out {out}: folder {out.parent} does not exist")
-    if fps is not None and not fps > 0:
-        raise usage_error(f"--fps must be positive, got {fps}")

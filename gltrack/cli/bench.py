@@ -39,23 +39,30 @@ def _table(res):
     return "\n".join(lines)
 
 
-def run(args):
-    import importlib
-
-    if args.suite == "engine":
+def _suite(name):
+    """(run(args) -> results dict, format(results) -> text) of bench suite ``name``."""
+    if name == "engine":
         from gltrack.bench.engine import bench_engine
 
-        res = bench_engine(quick=args.quick, with_baseline=not args.no_baseline, seed=args.seed)
-        text = _table(res)
-    else:
-        import inspect
+        return (lambda a: bench_engine(quick=a.quick, with_baseline=not a.no_baseline,
+                                       seed=a.seed)), _table
+    if name == "depth":
+        from gltrack.bench.depth import bench_depth, format_table
 
-        mod = importlib.import_module(f"gltrack.bench.{args.suite}")
-        fn = getattr(mod, f"bench_{args.suite}")
-        kw = {"seed": args.seed} if "seed" in inspect.signature(fn).parameters else {}
-        res = fn(quick=args.quick, **kw)
-        fmt = getattr(mod, "format_table", None) or getattr(mod, "table", None)
-        text = fmt(res) if fmt else json.dumps(res, indent=1)
+        return (lambda a: bench_depth(quick=a.quick)), format_table
+    if name == "multiview":
+        from gltrack.bench.multiview import bench_multiview, table
+
+        return (lambda a: bench_multiview(quick=a.quick)), table
+    from gltrack.bench.vlmm import bench_vlmm, format_table
+
+    return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed)), format_table
+
+
+def run(args):
+    bench, fmt = _suite(args.suite)
+    res = bench(args)
+    text = fmt(res)
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2, default=float) + "\n")
     print(text)

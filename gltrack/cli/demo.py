@@ -17,7 +17,7 @@ def run(args):
 
     rigs = ("depth", "multiview") if args.rig == "both" else (args.rig,)
     if not 0.5 <= args.seconds <= 60:
-        from gltrack.cli import UsageError
+        from .common import UsageError
 
         raise UsageError(f"--seconds must be within 0.5..60, got {args.seconds}")
     summary = run_demo(args.out, seed=args.seed, progress=not args.quiet, rigs=rigs, seconds=args.seconds)

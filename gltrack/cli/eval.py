@@ -17,7 +17,7 @@ def add_arguments(p):
 
 
 def _outputs(args):
-    from gltrack.cli import UsageError
+    from .common import UsageError
 
     outs = [(flag, Path(v)) for flag, v in (("--json", args.json), ("--csv", args.csv),
                                             ("--plot", args.plot)) if v]

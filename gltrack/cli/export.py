@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.cli import check_output_file
+from .common import check_output_file
 
 NAME = "export"
 HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "
@@ -31,7 +31,7 @@ def add_arguments(p):
 
 
 def _format_and_out(args):
-    from gltrack.cli import UsageError
+    from .common import UsageError
     from gltrack.export import FORMATS
 
     fmt = args.format

@@ -96,7 +96,7 @@ def format_report(rep: dict, clips: list) -> str:
 def run(args):
     import numpy as np
 
-    from gltrack.cli import UsageError
+    from .common import UsageError
     from gltrack.motion.behaviour import BehaviourModel
     from gltrack.motion.retarget import load_motion
 

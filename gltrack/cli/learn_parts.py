@@ -87,7 +87,7 @@ def _split(path, heldout):
 
 
 def run(args):
-    from gltrack.cli import UsageError
+    from .common import UsageError
 
     if not 0 <= args.heldout < 1:
         raise UsageError(f"--heldout must be in [0, 1), got {args.heldout}")
@@ -122,7 +122,7 @@ def run(args):
 
 
 def _train(args, out):
-    from gltrack.cli import UsageError
+    from .common import UsageError
     from gltrack.evidence import classifier as C
 
     report_rendered = {}

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.cli import check_output_file
+from .common import check_output_file
 
 NAME = "render"
 HELP = ("overlay video: the tracked body, its skeleton and the ground truth drawn over the "
@@ -29,7 +29,7 @@ def add_arguments(p):
 def run(args):
     import logging
 
-    from gltrack.cli import UsageError
+    from .common import UsageError
     from gltrack.eval.overlay import render_overlay
 
     out = Path(args.out)

@@ -42,7 +42,7 @@ def add_arguments(p):
 
 def parse_size(text):
     """``"WxH"`` -> (W, H) ints; UsageError otherwise."""
-    from gltrack.cli import UsageError
+    from .common import UsageError
 
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text or "")
     if not m:
@@ -55,7 +55,7 @@ def parse_size(text):
 
 def parse_frames(text):
     """``"A:B"`` -> (A, B) with 0 <= A < B; UsageError otherwise."""
-    from gltrack.cli import UsageError
+    from .common import UsageError
 
     m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", text or "")
     if not m:
@@ -67,7 +67,7 @@ def parse_frames(text):
 
 
 def run(args):
-    from gltrack.cli import UsageError
+    from .common import UsageError
 
     size = parse_size(args.size) if args.size is not None else None
     frames = parse_frames(args.frames) if args.frames is not None else None

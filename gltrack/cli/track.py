@@ -5,16 +5,17 @@ NAME = "track"
 HELP = "track a dataset with one of the trackers and write a results folder (crash-safe, --resume)"
 
 
-def add_arguments(p):
-    from gltrack.track.runner import available_methods
+#: tracker flags -> the help text; each sets the option of the same name (or the one the
+#: method's options class maps it to in ``FLAGS``) and is refused by methods without it
+TRACKER_FLAGS = ("particles", "layers", "prior", "behaviour")
 
-    methods = sorted(available_methods())
+
+def add_arguments(p):
+    from gltrack.track.registry import METHODS
+
     p.add_argument("dataset", help="dataset folder (gltrack-dataset version 1)")
-    p.add_argument("--method", required=True, choices=methods,
-                   help="hc / hc+ep / ep: depth trackers (Ganapathi); sir / apf / ps / hps: multi-view "
-                        "particle filters (Bandouch); vlmm: behaviour-model particle filter (Caillette; "
-                        "needs --behaviour MODEL.npz from gltrack learn); condensation / apf-blobs: "
-                        "Gaussian-diffusion filters on vlmm's voxel/blob likelihood")
+    p.add_argument("--method", required=True, choices=sorted(METHODS),
+                   help="; ".join(f"{name}: {m.summary}" for name, m in METHODS.items()))
     p.add_argument("--out", required=True, help="results folder to write")
     p.add_argument("--config", metavar="FILE.toml",
                    help="tracker options as a TOML table (unknown keys are errors); see the method's "
@@ -65,38 +66,34 @@ def load_config(path, usage_error):
 
 
 def merge_flags(options: dict, args, usage_error) -> dict:
-    """Command-line flags on top of the ``--config`` table (flags win); a flag whose option the
-    method does not have is a usage error."""
-    import dataclasses
+    """Command-line flags on top of the ``--config`` table (flags win).
 
-    from gltrack.track.runner import options_class
+    Derived from the method's options class: a flag sets the option named in its ``FLAGS``
+    (default: the flag's own name) and the options that ``IMPLIES`` names unless they were
+    given; a flag whose option the method does not have is a usage error.
+    """
+    from gltrack.track.registry import options_class
 
-    fields = {f.name for f in dataclasses.fields(options_class(args.method))}
+    cls = options_class(args.method)
+    fields = set(cls.keys())
     opts = dict(options)
-    for flag, key, value in (("--particles", "particles", args.particles),
-                             ("--layers", "layers", args.layers),
-                             ("--prior", "prior", args.prior)):
+    for flag in TRACKER_FLAGS:
+        value = getattr(args, flag)
         if value is None:
             continue
-        # sir shares the multi-view options but has a single layer by definition
-        if key not in fields or (key == "layers" and args.method == "sir"):
-            raise usage_error(f"{flag} does not apply to --method {args.method}")
-        if key in ("particles", "layers") and value < 1:
-            raise usage_error(f"{flag} must be at least 1, got {value}")
+        key = cls.FLAGS.get(flag, flag)
+        if key not in fields:
+            raise usage_error(f"--{flag} does not apply to --method {args.method}")
+        if isinstance(value, int) and value < 1:
+            raise usage_error(f"--{flag} must be at least 1, got {value}")
         opts[key] = value
-    if args.behaviour is not None:
-        if "model" in fields:
-            opts["model"] = args.behaviour
-        elif "prior_model" in fields:
-            opts["prior_model"] = args.behaviour
-            opts.setdefault("prior", "vlmm")
-        else:
-            raise usage_error(f"--behaviour does not apply to --method {args.method}")
+        for k, v in cls.IMPLIES.get(key, {}).items():
+            opts.setdefault(k, v)
     return opts
 
 
 def run(args):
-    from gltrack.cli import UsageError
+    from .common import UsageError
     from gltrack.track.runner import track
 
     options = merge_flags(load_config(args.config, UsageError), args, UsageError)

@@ -16,7 +16,8 @@ from .partitions import default_partitions, fine_partitions, hill_climb_order
 from .resampling import (RESAMPLERS, get_resampler, multinomial_resample, residual_resample,
                          stratified_resample, systematic_resample)
 from .sir import SIRFilter
-from .weights import Weights, annealing_exponent, bandouch_weights, ess, minmax_norm
+from .weights import (Weights, annealing_exponent, bandouch_weights, cost_weights, ess,
+                      minmax_norm)
 
 __all__ = [
     "AnnealedParticleFilter", "AnnealOutput", "anneal", "LayerInfo", "SampleResult", "predict",
@@ -25,5 +26,5 @@ __all__ = [
     "run_partitions", "default_partitions", "fine_partitions", "hill_climb_order", "RESAMPLERS",
     "get_resampler", "multinomial_resample", "residual_resample", "stratified_resample",
     "systematic_resample", "SIRFilter", "Weights", "annealing_exponent", "bandouch_weights",
-    "ess", "minmax_norm",
+    "cost_weights", "ess", "minmax_norm",
 ]

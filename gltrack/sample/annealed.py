@@ -58,7 +58,7 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
     Parameters
     ----------
     particles : (N, D) float, equally weighted input set
-    weight_fn : callable, (N, D) -> (N,) non-negative, larger = better
+    weight_fn : callable, (N, D) -> (N,) non-negative, larger = better (or a ``Weights``)
     rng : numpy.random.Generator
     space : StateSpace
     dims : (K,) int, optional, the dimensions this stage estimates (default all)

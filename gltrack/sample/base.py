@@ -56,6 +56,8 @@ class SampleResult:
     evaluations : int, particles passed to ``weight_fn`` in this step
     layers : list of LayerInfo, one per call of ``weight_fn`` in order
     info : dict, sampler-specific extras (e.g. the final weight share of each HPS pipeline)
+    ancestors : (N,) int64, row of ``final_particles`` each row of ``particles`` was drawn from
+        (a motion model with per-particle state, e.g. the VLMM prior, follows it)
     """
 
     estimate: np.ndarray
@@ -66,6 +68,7 @@ class SampleResult:
     evaluations: int
     layers: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    ancestors: np.ndarray | None = None
 
 
 def predict(particles, rng: np.random.Generator, space, predict_fn=None,
@@ -78,7 +81,7 @@ def predict(particles, rng: np.random.Generator, space, predict_fn=None,
     rng : numpy.random.Generator
     space : StateSpace, validates the input and the prediction
     predict_fn : callable ``(particles (N, D), rng) -> (N, D)`` or None
-        A learnt motion model (e.g. ``gltrack.track.vlmm.VlmmPrior.predict``). None keeps the
+        A learnt motion model (e.g. ``gltrack.motion.vlmm_prior.VlmmPrior.predict``). None keeps the
         default motion model, the Gaussian diffusion of each stage's first layer.
     predict_scale : float >= 0, the first layers' diffusion (in units of the motion-model
         sigmas) that remains after a prediction: 0 trusts the prediction's own noise; a learnt
@@ -104,17 +107,22 @@ def predict(particles, rng: np.random.Generator, space, predict_fn=None,
 
 
 def evaluate(weight_fn, x: np.ndarray) -> np.ndarray:
-    """Call ``weight_fn`` on (N, D) particles and return validated (N,) log-weights."""
-    w = np.asarray(weight_fn(x), dtype=np.float64)
-    if w.shape != (x.shape[0],):
-        raise ValueError(f"weight_fn must return shape ({x.shape[0]},), got {w.shape}")
-    return log_weights(w)
+    """Call ``weight_fn`` on (N, D) particles and return validated (N,) log-weights.
+
+    ``weight_fn`` returns raw non-negative weights (N,) or a :class:`Weights` (log-weights, e.g.
+    from :func:`~gltrack.sample.weights.cost_weights`), which cannot underflow.
+    """
+    w = weight_fn(x)
+    lw = w.lw if isinstance(w, Weights) else log_weights(np.asarray(w, dtype=np.float64))
+    if lw.shape != (x.shape[0],):
+        raise ValueError(f"weight_fn must return shape ({x.shape[0]},), got {lw.shape}")
+    return lw
 
 
 def finish(x: np.ndarray, weights: Weights, raw_lw: np.ndarray, rng: np.random.Generator,
            n_out: int, resampler, evaluations: int, layers: list) -> SampleResult:
     """Build a :class:`SampleResult` from the final weighted set (resampling to ``n_out``)."""
-    idx = get_resampler(resampler)(weights.W, rng, n_out)
+    idx = np.asarray(get_resampler(resampler)(weights.W, rng, n_out), dtype=np.int64)
     return SampleResult(estimate=weights.mean(x), best=x[int(np.argmax(raw_lw))].copy(),
                         particles=x[idx].copy(), final_particles=x, weights=weights,
-                        evaluations=int(evaluations), layers=list(layers))
+                        evaluations=int(evaluations), layers=list(layers), ancestors=idx)

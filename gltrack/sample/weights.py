@@ -93,6 +93,32 @@ def log_weights(w) -> np.ndarray:
         return np.log(w)
 
 
+def cost_weights(cost, scale: float = 1.0) -> Weights:
+    """The one cost -> weight mapping of gltrack: ``w = exp(-(cost - min cost) / scale)``.
+
+    Every tracker whose likelihood is a cost (KL divergence in nats, a scaled silhouette error)
+    hands its particles' weights to a sampler through this function; the result is kept as
+    log-weights, so no weight underflows however far a particle is from the best (a raw
+    ``exp(-2000)`` would be 0 and drop out of the sampler's exponent search).
+
+    Parameters
+    ----------
+    cost : (N,) float, lower is better (finite)
+    scale : float > 0, cost units per nat (1: the cost is a negative log-likelihood)
+
+    Returns
+    -------
+    Weights with ``lw = -(cost - cost.min()) / scale`` (the best particle has ``lw = 0``).
+    A sampler that tempers (annealing layers, a target survival rate) rescales them anyway.
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    if c.ndim != 1 or c.size == 0 or not np.all(np.isfinite(c)):
+        raise ValueError(f"costs must be a finite non-empty 1-D array, got shape {c.shape}")
+    if not scale > 0:
+        raise ValueError(f"scale must be > 0, got {scale}")
+    return Weights(-(c - c.min()) / scale)
+
+
 def ess(weights) -> float:
     """Effective sample size ``(sum w)^2 / sum w^2`` of raw non-negative weights (N,)."""
     w = np.asarray(weights, dtype=np.float64)

@@ -1,7 +1,6 @@
-"""What every tracker provides, and the option handling shared by all of them."""
+"""What every tracker provides: ``start``, ``step``, ``transform_state``, ``close``."""
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,8 +27,11 @@ class FrameEstimate:
 class Tracker:
     """Base class: ``start`` once with an initial pose, then ``step`` frame by frame.
 
-    Subclasses set ``method`` and implement :meth:`step`; :meth:`auto_init` is optional.
-    Resources (GL engines) are freed by :meth:`close`.
+    A tracker is a composition: an observation model and a likelihood (``gltrack.observe``),
+    a motion prior (``gltrack.motion`` or ``gltrack.sample``) and a sampler or optimiser
+    (``gltrack.sample``); its class wires them together for one method. Subclasses set
+    ``method`` and implement :meth:`start`, :meth:`step` and :meth:`transform_state`;
+    :meth:`auto_init` is optional. Resources (GL engines) are freed by :meth:`close`.
     """
 
     method = "base"
@@ -40,33 +42,18 @@ class Tracker:
     def step(self, frame: int) -> FrameEstimate:
         raise NotImplementedError
 
+    def transform_state(self, fn) -> None:
+        """Replace the tracker's pose hypotheses ``X`` (N, D) by ``fn(X)`` (same shape).
+
+        For runner hooks that need to reach into the state between frames (the benches'
+        fault injection: an arm thrown off, a particle set turned away). A single-hypothesis
+        tracker passes its pose as one row.
+        """
+        raise NotImplementedError
+
     def auto_init(self, frame: int) -> np.ndarray:
         raise ValueError(f"method {self.method!r} has no automatic initialisation; "
                          "use --init groundtruth or --init POSE.npy")
 
     def close(self) -> None:
         pass
-
-
-def options_from_dict(cls, values: dict | None, where: str = "config"):
-    """Build the options dataclass ``cls`` from a dict, rejecting unknown keys and bad types."""
-    values = dict(values or {})
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - set(fields))
-    if unknown:
-        raise ValueError(f"{where}: unknown option(s) {', '.join(unknown)} for {cls.__name__}; "
-                         f"known: {', '.join(sorted(fields))}")
-    out = {}
-    for k, v in values.items():
-        default = getattr(cls(), k)
-        if isinstance(default, bool):
-            if not isinstance(v, bool):
-                raise ValueError(f"{where}: option {k} must be true or false, got {v!r}")
-        elif isinstance(default, (int, float)) and not isinstance(default, bool):
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ValueError(f"{where}: option {k} must be a number, got {v!r}")
-            v = type(default)(v) if isinstance(default, float) or float(v).is_integer() else v
-        elif isinstance(default, str) and not isinstance(v, str):
-            raise ValueError(f"{where}: option {k} must be a string, got {v!r}")
-        out[k] = v
-    return cls(**out)

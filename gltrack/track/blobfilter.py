@@ -1,74 +1,88 @@
 """Particle filters with the voxel/blob/KL likelihood: methods ``condensation`` and ``apf-blobs``.
 
 The baselines of Caillette, Galata & Howard (2008, sec. 7): the same evaluation as the
-behaviour-model tracker (``vlmm``, :mod:`gltrack.track.blob_evidence`: voxels, blob fit, KL per
+behaviour-model tracker (``vlmm``, :mod:`gltrack.observe.blob_evidence`: voxels, blob fit, KL per
 particle), with a motion model that knows nothing of behaviour:
 
 * ``condensation`` (Isard & Blake): every particle diffuses with the DOF preset's inter-frame
   Gaussian sigmas (:meth:`gltrack.body.dofs.DofSet.sigma_at` the data's frame rate, times
-  ``sigma_scale``), is weighted once and resampled;
+  ``sigma_scale``), is weighted once and resampled: :class:`gltrack.sample.AnnealedParticleFilter`
+  with one layer;
 * ``apf-blobs`` (Deutscher et al.): the same first diffusion, then ``layers`` annealing layers,
-  each resampling and diffusing with the shrinking spread of the set
-  (:func:`gltrack.sample.annealed.anneal`).
+  each resampling and diffusing with the shrinking spread of the set (the same sampler).
 
-Weights are ``exp(-beta * KL)``: Condensation (and ``vlmm``) choose ``beta`` per frame so that the
-effective sample size is ``survival * N``; the annealing layers choose it for a survival of
-``alpha``. The blob evidence of a frame is fitted from the previous estimate and from the mean of
+Weights are ``exp(-beta * KL)`` (:func:`gltrack.sample.weights.cost_weights`): Condensation (and
+``vlmm``) choose ``beta`` per frame so that the effective sample size is ``survival * N``; the
+annealing layers choose it for a survival of ``alpha``. The blob evidence of a frame is fitted from the previous estimate and from the mean of
 the predicted particles (these methods have no motion clusters to take prototypes from).
 
 A frame whose best particle is worse than ``lost_threshold`` KL nats is reported
-(``info["lost"]``); these baselines have no recovery (the paper's point). ``perturb_frame``
-injects a failure for the recovery benchmark: the whole particle set is turned by
-``perturb_rad`` about the vertical and moved by ``perturb_shift`` metres along x.
+(``info["lost"]``); these baselines have no recovery (the paper's point).
 """
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from gltrack.sample.annealed import anneal
-from gltrack.sample.diffusion import StateSpace
-from gltrack.sample.resampling import systematic_resample
+from gltrack.observe.blob_evidence import (LOST_KL, SEGMENTATIONS, BlobEvidence,
+                                           ColourAcquisition, placed_candidates, stage_seconds)
+from gltrack.sample import AnnealedParticleFilter, StateSpace, cost_weights
 
 from .base import FrameEstimate, Tracker
-from .blob_evidence import (BlobEvidenceOptions, ColourAcquisition, placed_candidates,
-                            stage_seconds)
-from .runner import register
+from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
 
-#: a best-particle KL above this (nats) flags a lost frame by default
-LOST_KL = 25.0
 
+@dataclass
+class BlobEvidenceOptions(Options):
+    """The likelihood's options, shared by ``vlmm``, ``condensation`` and ``apf-blobs``
+    (``--config`` keys; see :class:`~gltrack.observe.blob_evidence.BlobEvidence`).
 
-def kl_weights(cost) -> np.ndarray:
-    """Monotone, underflow-free raw weights of (N,) KL costs for a sampler that tempers them.
-
-    ``exp(-(c - c_min) / s)`` with ``s`` a fiftieth of the cost range: every weight stays above
-    ``exp(-50)``, so the sampler's exponent search (``annealing_exponent``) sees all particles.
+    volume : tracking volume [xmin, ymin, zmin, xmax, ymax, zmax], metres; empty = 3 m x 3 m
+        around the point the cameras look at, floor to 2.5 m
+    base, max_depth, tolerance : voxel reconstruction (max_depth 3 = the paper's depth 7)
+    segmentation : "masks" (the dataset's foreground masks) or "colour" (chi-square test of
+        pixel samples against the background frames, the paper's own)
+    fit_iterations : EM iterations of the blob fit
+    colour : coloured blobs (the fit weighs the voxels' colours; false: shape only)
+    colour_frames : first frames over which the blobs' colours are acquired from the estimates
     """
-    c = np.asarray(cost, dtype=np.float64)
-    spread = float(np.ptp(c))
-    if not spread > 0:
-        return np.ones_like(c)
-    return np.exp(-(c - c.min()) * (50.0 / spread))
 
+    volume: list = field(default_factory=list)
+    base: int = 16
+    max_depth: int = 3
+    tolerance: int = 0
+    segmentation: str = "masks"
+    fit_iterations: int = 4
+    colour: bool = True
+    colour_frames: int = 5
 
-def inject_failure(particles, dofs, rad: float, shift: float) -> np.ndarray:
-    """(N, D) particles turned by ``rad`` about the vertical and moved ``shift`` m along x."""
-    P = np.array(particles, dtype=np.float64)
-    P[:, dofs.index("pelvis_ry")] += rad
-    P[:, 0] += shift
-    return dofs.validate(P)
+    def problems(self):
+        bad = super().problems() + [*choice(self, "segmentation", SEGMENTATIONS),
+                                    *at_least(self, 1, "base", "fit_iterations"),
+                                    *at_least(self, 0, "max_depth", "tolerance", "colour_frames")]
+        v = np.asarray(self.volume, dtype=np.float64)
+        if len(v) and (v.shape != (6,) or np.any(v[3:] <= v[:3])):
+            bad.append(f"volume = {list(self.volume)} (must be [xmin, ymin, zmin, xmax, ymax, "
+                       "zmax] with max > min)")
+        return bad
+
+    def evidence(self, dataset, body) -> BlobEvidence:
+        """The :class:`BlobEvidence` these options describe."""
+        return BlobEvidence(dataset, body, volume=self.volume, base=self.base,
+                            max_depth=self.max_depth, tolerance=self.tolerance,
+                            segmentation=self.segmentation, fit_iterations=self.fit_iterations,
+                            colour=self.colour)
 
 
 @dataclass
 class CondensationOptions(BlobEvidenceOptions):
     """Options of ``condensation`` (``--config`` keys): those of the likelihood
-    (:class:`~gltrack.track.blob_evidence.BlobEvidenceOptions`) plus
+    (:class:`BlobEvidenceOptions`) plus
 
     particles : particles per frame (= KL evaluations per frame)
     sigma_scale : multiplier of the DOF preset's inter-frame sigmas (the diffusion)
@@ -86,18 +100,12 @@ class CondensationOptions(BlobEvidenceOptions):
     headings: int = 12
     lost_threshold: float = LOST_KL
 
-    def check(self, method):
-        bad = []
-        if self.particles < 2:
-            bad.append(f"particles = {self.particles} (at least 2)")
-        if not 0 < self.survival < 1:
-            bad.append(f"survival = {self.survival} (in (0, 1))")
-        if not self.sigma_scale > 0:
-            bad.append(f"sigma_scale = {self.sigma_scale} (> 0)")
-        if self.estimate not in ("best", "mean"):
-            bad.append(f"estimate = {self.estimate!r} (best or mean)")
-        if bad:
-            raise ValueError(f"options for {method}: " + "; ".join(bad))
+    def problems(self):
+        return super().problems() + [*at_least(self, 2, "particles"),
+                                     *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
+                                     *positive(self, "sigma_scale"),
+                                     *choice(self, "estimate", ("best", "mean")),
+                                     *at_least(self, 1, "headings")]
 
 
 @dataclass
@@ -111,41 +119,35 @@ class ApfBlobsOptions(CondensationOptions):
     layers: int = 5
     alpha: float = 0.5
 
-    def check(self, method):
-        super().check(method)
-        if self.layers < 1:
-            raise ValueError(f"options for {method}: layers = {self.layers} (at least 1)")
-        if not 0 < self.alpha < 1:
-            raise ValueError(f"options for {method}: alpha = {self.alpha} (in (0, 1))")
+    def problems(self):
+        return super().problems() + [*at_least(self, 1, "layers"),
+                                     *within(self, "alpha", 0, 1, open_lo=True, open_hi=True)]
 
 
 class CondensationTracker(Tracker):
-    """Gaussian-diffusion particle filter on the blob likelihood (see module docstring)."""
+    """Gaussian-diffusion particle filter on the blob likelihood (see module docstring).
+
+    The composition: :class:`~gltrack.observe.blob_evidence.BlobEvidence` (observation and
+    likelihood), Gaussian diffusion (motion prior) and
+    :class:`~gltrack.sample.AnnealedParticleFilter` (one layer for Condensation).
+    """
 
     method = "condensation"
+    options_class = CondensationOptions
 
     def __init__(self, dataset, body, ctx=None, options: CondensationOptions | None = None,
                  rng=None):
-        opt = self.opt = options or self._default_options()
-        opt.check(self.method)
+        opt = self.opt = (options or self.options_class()).validate()
         self.ds, self.body = dataset, body
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.evidence = opt.evidence(dataset, body)
-        self.space = StateSpace.from_dofs(body.dofs, dataset.fps)
-        self.first_sigma = self.space.sigma * opt.sigma_scale
+        base = StateSpace.from_dofs(body.dofs, dataset.fps)
+        self.space = StateSpace(base.lower, base.upper, base.sigma * opt.sigma_scale)
+        layers, alpha = (opt.layers, opt.alpha) if isinstance(opt, ApfBlobsOptions) else \
+            (1, opt.survival)
+        self.sampler = AnnealedParticleFilter(self.space, layers=layers, alpha=alpha)
         self.P = None
         self.est = None
-
-    def _default_options(self):
-        return CondensationOptions()
-
-    @property
-    def layers(self) -> int:
-        return 1
-
-    @property
-    def alpha(self) -> float:
-        return self.opt.survival
 
     # -- initialisation -----------------------------------------------------------------------
     def auto_init(self, frame):
@@ -165,6 +167,11 @@ class CondensationTracker(Tracker):
         self.est = p
         self.colours = ColourAcquisition(self.evidence, frame, p, self.opt.colour_frames)
 
+    def transform_state(self, fn):
+        if self.P is None:
+            raise RuntimeError("start() the tracker first")
+        self.P = self.body.dofs.validate(fn(self.P))
+
     # -- tracking -----------------------------------------------------------------------------
     def step(self, frame):
         if self.P is None:
@@ -172,10 +179,6 @@ class CondensationTracker(Tracker):
         t0 = time.perf_counter()
         ev = self.evidence
         ev.set_frame(frame)
-        if frame == self.opt.perturb_frame:
-            self.P = inject_failure(self.P, self.body.dofs, self.opt.perturb_rad,
-                                    self.opt.perturb_shift)
-            log.info("frame %d: failure injected", frame)
         if ev.empty:
             # nothing to weigh against: keep the particles, report the frame
             return FrameEstimate(self.est.copy(), float("nan"), 0,
@@ -183,39 +186,19 @@ class CondensationTracker(Tracker):
                                      ev, time.perf_counter() - t0)})
         # the diffusion is zero-mean, so the set's mean is the mean prediction
         ev.fit(np.stack([self.est, self.P.mean(axis=0)]))
-        out = anneal(self.P, lambda x: kl_weights(ev.costs(x)), self.rng, self.space,
-                     layers=self.layers, alpha=self.alpha, first_sigma=self.first_sigma,
-                     stage=self.method)
-        x, w = out.particles, out.weights
-        best = int(np.argmax(out.raw_lw))
-        est = x[best].copy() if self.opt.estimate == "best" else w.mean(x)
+        res = self.sampler.step(self.P, lambda x: cost_weights(ev.costs(x)), self.rng)
+        est = res.best if self.opt.estimate == "best" else res.estimate
         score = float(ev.costs(est[None])[0])
         self.est = est
         self.colours.update(frame, est)
-        self.P = x[systematic_resample(w.W, self.rng, self.opt.particles)]
+        self.P = res.particles
         info = {"fit_loglik": ev.fit_loglik, "lost": score > self.opt.lost_threshold,
                 "stage_seconds": stage_seconds(ev, time.perf_counter() - t0)}
-        return FrameEstimate(est, score, out.evaluations + 1, info)
+        return FrameEstimate(est, score, res.evaluations + 1, info)
 
 
 class ApfBlobsTracker(CondensationTracker):
     """Annealed particle filter on the blob likelihood (see module docstring)."""
 
     method = "apf-blobs"
-
-    def _default_options(self):
-        return ApfBlobsOptions()
-
-    @property
-    def layers(self) -> int:
-        return self.opt.layers
-
-    @property
-    def alpha(self) -> float:
-        return self.opt.alpha
-
-
-register("condensation", "multiview", "gltrack.track.blobfilter:CondensationTracker",
-         "gltrack.track.blobfilter:CondensationOptions")
-register("apf-blobs", "multiview", "gltrack.track.blobfilter:ApfBlobsTracker",
-         "gltrack.track.blobfilter:ApfBlobsOptions")
+    options_class = ApfBlobsOptions

@@ -45,23 +45,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gltrack.camera import Camera
 from gltrack.gl.programs import ProgramCache
-from gltrack.observe.depth import depth_tolerance, foreground_points, remove_background
-from gltrack.render.engine import DepthCostParams, ScoringEngine
+from gltrack.observe.depth import foreground_points
+from gltrack.observe.depth_view import DepthLikelihood, DepthObservation
+from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb
 from gltrack.sample.partitions import default_partitions, hill_climb_order
 
 from .base import FrameEstimate, Tracker
+from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
 
-#: Limb partitions a recovery perturbation may target (``perturb_part``).
-PERTURB_PARTS = ("l_arm", "r_arm", "l_leg", "r_leg")
+#: The limb partitions, in the order the limb stage of the climb falls back to.
+LIMBS = ("l_arm", "r_arm", "l_leg", "r_leg")
 
 
 @dataclass
-class DepthOptions:
+class DepthOptions(Options):
     """Options of the depth tracker (``--config`` keys). Defaults are general, not per clip.
 
     tile : tile side in pixels (the observation is resampled to it); 64 or 128
@@ -101,9 +102,6 @@ class DepthOptions:
         takes the lowest. Measured (hc+ep, one noise seed, mean marker error m, margin 0 / 1 /
         3): walk .045 / .040 / .039, salsa .068 / .058 / .060, demo (15 fps) .098 / .083 /
         .066, but hop .063 / .079 / .233: a margin trades fast turns for steadier slow ones
-    perturb_frame, perturb_part, perturb_rad : recovery test; at ``perturb_frame`` (-1 = never)
-        the state's DOFs of limb ``perturb_part`` (l_arm, r_arm, l_leg, r_leg) are shifted by
-        ``perturb_rad`` radians before the frame is tracked
     """
 
     tile: int = 64
@@ -129,38 +127,18 @@ class DepthOptions:
     root_sigma_scale: float = 1.0
     heading_hypotheses: int = 3
     heading_margin: float = 0.0
-    perturb_frame: int = -1
-    perturb_part: str = "r_arm"
-    perturb_rad: float = 0.5
 
-    def check(self):
-        """Raise ValueError for options outside their domain (the config names the key)."""
-        bad = []
-        if self.tile not in (16, 32, 64, 128, 256):
-            bad.append(f"tile = {self.tile} (a power of two in 16..256)")
-        for k in ("scale", "shrink", "search_sigmas", "root_sigma_scale"):
-            if not getattr(self, k) > 0:
-                bad.append(f"{k} = {getattr(self, k)} (must be > 0)")
-        if not 0 < self.shrink < 1:
-            bad.append(f"shrink = {self.shrink} (must be in (0, 1))")
-        if not self.heading_margin >= 0:
-            bad.append(f"heading_margin = {self.heading_margin} (must be >= 0)")
-        for k in ("levels", "passes", "heading_hypotheses"):
-            if getattr(self, k) < 1:
-                bad.append(f"{k} = {getattr(self, k)} (must be >= 1)")
-        if self.grid < 2:
-            bad.append(f"grid = {self.grid} (must be >= 2)")
-        for k in ("penalty", "prior_weight", "bg_tolerance", "bg_sigmas", "range_noise_2m",
-                  "crop_margin", "area_unit", "refine_passes", "velocity_search"):
-            if getattr(self, k) < 0:
-                bad.append(f"{k} = {getattr(self, k)} (must be >= 0)")
-        if self.perturb_part not in PERTURB_PARTS:
-            bad.append(f"perturb_part = {self.perturb_part!r} (one of {', '.join(PERTURB_PARTS)})")
-        if not 0 <= self.velocity_damping <= 1:
-            bad.append(f"velocity_damping = {self.velocity_damping} (must be in [0, 1])")
-        if bad:
-            raise ValueError("invalid depth-tracker option(s): " + "; ".join(bad))
-        return self
+    def problems(self):
+        return super().problems() + [
+            *choice(self, "tile", (16, 32, 64, 128, 256)),
+            *positive(self, "scale", "search_sigmas", "root_sigma_scale"),
+            *within(self, "shrink", 0, 1, open_lo=True, open_hi=True),
+            *at_least(self, 1, "levels", "passes", "heading_hypotheses"),
+            *at_least(self, 2, "grid"),
+            *at_least(self, 0, "penalty", "prior_weight", "bg_tolerance", "bg_sigmas",
+                      "range_noise_2m", "crop_margin", "area_unit", "refine_passes",
+                      "velocity_search", "heading_margin"),
+            *within(self, "velocity_damping", 0, 1)]
 
 
 def root_rotation_dofs(dofs) -> list[int]:
@@ -169,155 +147,46 @@ def root_rotation_dofs(dofs) -> list[int]:
     return [i for i in range(3, dofs.size) if int(dofs.joint[i]) == root]
 
 
-class DepthObservation:
-    """Reads, undistorts and background-subtracts the depth frames of a dataset's depth camera."""
-
-    def __init__(self, dataset, options: DepthOptions):
-        cams = [i for i, c in enumerate(dataset.cameras) if c.kind == "depth"]
-        if not cams:
-            raise ValueError(f"{dataset.path}: the depth tracker needs a depth camera")
-        self.dataset, self.index = dataset, cams[0]
-        self.camera = dataset.cameras[self.index]
-        self.pinhole = self.camera.undistorted()
-        self.distorted = bool(np.any(self.camera.dist != 0))
-        bg = dataset.background(self.index)
-        self.background = self._undistort(bg) if bg is not None else None
-        self.tolerance = options.bg_tolerance
-        if self.background is not None and options.bg_sigmas > 0:
-            self.tolerance = depth_tolerance(self.background, options.bg_tolerance,
-                                             options.bg_sigmas, options.range_noise_2m)
-        if self.background is None:
-            log.warning("%s: no empty-scene depth frame; only far pixels are removed", dataset.path)
-
-    def _undistort(self, z):
-        import cv2
-
-        return self.camera.undistort_image(z, cv2.INTER_NEAREST) if self.distorted else z
-
-    def __call__(self, frame: int) -> np.ndarray:
-        z = self._undistort(self.dataset.depth(frame, self.index))
-        return remove_background(z, self.background, tolerance=self.tolerance)
-
-
-def crop_camera(pinhole: Camera, points, tile: int, margin: float) -> tuple[Camera, float]:
-    """A square ``tile x tile`` camera looking at ``points`` through ``pinhole``'s sensor.
-
-    Parameters
-    ----------
-    pinhole : Camera, undistorted sensor camera
-    points : (P, 3) float, metres, world points to frame (e.g. the predicted joints)
-    tile : int, pixels
-    margin : float, metres added on every side at the points' median depth
-
-    Returns
-    -------
-    camera : Camera, same pose as ``pinhole``, ``tile x tile`` pixels of equal metric size; the
-        window is shifted to stay inside the sensor's field of view when it fits
-    depth : float, metres, median camera depth of ``points``
-    """
-    P = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ pinhole.R.T + pinhole.t
-    P = P[P[:, 2] > 0.1]
-    if len(P) == 0:
-        raise ValueError("crop_camera: no point in front of the camera")
-    zc = float(np.median(P[:, 2]))
-    a, b = P[:, 0] / P[:, 2], P[:, 1] / P[:, 2]
-    m = margin / zc
-    lo_a, hi_a = (-0.5 - pinhole.cx) / pinhole.fx, (pinhole.width - 0.5 - pinhole.cx) / pinhole.fx
-    lo_b, hi_b = (-0.5 - pinhole.cy) / pinhole.fy, (pinhole.height - 0.5 - pinhole.cy) / pinhole.fy
-    side = min(max(a.max() - a.min(), b.max() - b.min()) + 2 * m, max(hi_a - lo_a, hi_b - lo_b))
-
-    def place(lo, hi, c):
-        # keep the window inside the sensor where possible: model pixels outside it would be
-        # charged for surface the sensor cannot see
-        start = c - side / 2
-        if side <= hi - lo:
-            start = min(max(start, lo), hi - side)
-        else:
-            start = 0.5 * (lo + hi) - side / 2
-        return start
-
-    a0 = place(lo_a, hi_a, 0.5 * (a.min() + a.max()))
-    b0 = place(lo_b, hi_b, 0.5 * (b.min() + b.max()))
-    f = tile / side
-    K = np.array([[f, 0, -a0 * f - 0.5], [0, f, -b0 * f - 0.5], [0, 0, 1]])
-    return Camera(pinhole.name, pinhole.kind, tile, tile, K, np.zeros(5), pinhole.R, pinhole.t), zc
-
-
-def resample_depth(z, source: Camera, target: Camera) -> np.ndarray:
-    """Nearest-neighbour resampling of a depth image between two cameras with the same pose.
-
-    Pixel centres are mapped exactly (``cv2.resize``'s nearest neighbour is off by up to a
-    source pixel when shrinking); target pixels outside the source image are 0 (unobserved).
-
-    Parameters
-    ----------
-    z : (H, W) float, metres, at ``source``'s resolution
-    source, target : Camera, undistorted, same R and t
-
-    Returns
-    -------
-    (target.height, target.width) float32, metres
-    """
-    z = np.asarray(z, dtype=np.float32)
-    u = np.rint(source.cx + source.fx * (np.arange(target.width) - target.cx) / target.fx).astype(int)
-    v = np.rint(source.cy + source.fy * (np.arange(target.height) - target.cy) / target.fy).astype(int)
-    ok_u = (u >= 0) & (u < z.shape[1])
-    ok_v = (v >= 0) & (v < z.shape[0])
-    out = z[np.clip(v, 0, z.shape[0] - 1)[:, None], np.clip(u, 0, z.shape[1] - 1)[None, :]]
-    return np.where(ok_v[:, None] & ok_u[None, :], out, 0).astype(np.float32)
-
-
 class HillClimbDepthTracker(Tracker):
     """Ganapathi's model-based hill climbing on the GPU depth likelihood."""
 
     method = "hc"
 
     def __init__(self, dataset, body, ctx, options: DepthOptions | None = None, rng=None):
-        self.opt = (options or DepthOptions()).check()
+        self.opt = (options or DepthOptions()).validate()
         self.body = body
         self.ctx = ctx
-        self.obs = DepthObservation(dataset, self.opt)
-        self.params = DepthCostParams(scale=self.opt.scale, penalty=self.opt.penalty,
-                                      smooth=self.opt.smooth)
+        o = self.opt
+        self.obs = DepthObservation(dataset, bg_tolerance=o.bg_tolerance, bg_sigmas=o.bg_sigmas,
+                                    range_noise_2m=o.range_noise_2m)
         self.programs = ProgramCache(ctx)
-        self.engine = None
-        self._reduction = "auto"
-        self.view = None
-        self.weight = 1.0
-        if not self.opt.crop:
-            self._make_engine(self.obs.pinhole)
+        self.likelihood = DepthLikelihood(
+            ctx, body, self.obs.pinhole, tile=o.tile, crop=o.crop, area_unit=o.area_unit,
+            params=DepthCostParams(scale=o.scale, penalty=o.penalty, smooth=o.smooth),
+            programs=self.programs)
         self.sigma = body.dofs.sigma_at(dataset.fps).copy()
         self._root_rot = root_rotation_dofs(body.dofs)
-        self.sigma[self._root_rot] *= self.opt.root_sigma_scale
-        self.order = hill_climb_order(body.dofs, group_limbs=self.opt.batch_limbs)
+        self.sigma[self._root_rot] *= o.root_sigma_scale
+        self.order = hill_climb_order(body.dofs, group_limbs=o.batch_limbs)
         parts = default_partitions(body.dofs)
         self.torso_dofs = [i for i in self.order if isinstance(i, int)]
         self.limb_order = [g for g in self.order if not isinstance(g, int)] or \
-            [int(i) for k in PERTURB_PARTS if k in parts for i in parts[k]]
+            [int(i) for k in LIMBS if k in parts for i in parts[k]]
         self.parts = parts
         self.x = None
         self.v = None
         self.rng = rng
 
-    def _make_engine(self, camera):
-        if self.engine is not None:
-            self.engine.release()
-        self.engine = ScoringEngine(self.ctx, self.body.mesh, self.body.skeleton.n_joints, [camera],
-                                    tile=self.opt.tile, depth_params=self.params,
-                                    reduction=self._reduction, programs=self.programs)
-        self.view = camera
-
     # -- objective ------------------------------------------------------------------------
     def depth_cost(self, X: np.ndarray) -> np.ndarray:
         """(N,) depth cost of N poses against the current observation, in ``area_unit``s
         (tile pixels when ``area_unit`` is 0)."""
-        c = self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0] * self.weight
-        if self._reduction == "auto":
-            self._reduction = self.engine.reduction  # timed once; later engines reuse it
-        return c
+        return self.likelihood.cost(X)
 
-    def objective(self, x_pred):
-        w = 0.5 * self.opt.prior_weight
+    def objective(self, x_pred, prior_weight: float | None = None):
+        """The frame's cost function ``X (N, D) -> (N,)``: depth cost plus the velocity prior
+        centred on ``x_pred`` with ``prior_weight`` (default: the option)."""
+        w = 0.5 * (self.opt.prior_weight if prior_weight is None else prior_weight)
 
         def cost(X):
             X = np.atleast_2d(X)
@@ -332,8 +201,9 @@ class HillClimbDepthTracker(Tracker):
                           shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
                           lower=d.lower, upper=d.upper, passes=self.opt.passes)
 
-    def refine(self, x_start, x_pred, steps=None, levels=None, extra=None):
-        """Hill-climb from ``x_start`` under the prior centred on ``x_pred``.
+    def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None):
+        """Hill-climb from ``x_start`` under the prior centred on ``x_pred`` (weighted by
+        ``prior_weight``, default the option).
 
         One coarse-to-fine sweep down the kinematic chain, then ``refine_passes`` (or ``extra``)
         sweeps over the limbs only at half the step (the limbs were searched while the torso
@@ -343,7 +213,7 @@ class HillClimbDepthTracker(Tracker):
         -------
         HillClimbResult with the evaluations of all sweeps.
         """
-        cost = self.objective(x_pred)
+        cost = self.objective(x_pred, prior_weight)
         steps = self.search_steps() if steps is None else np.asarray(steps)
         levels = self.opt.levels if levels is None else levels
         evals = calls = 0
@@ -411,26 +281,8 @@ class HillClimbDepthTracker(Tracker):
         Also sets the area weight of the depth cost (see ``area_unit``).
         """
         margin = self.opt.crop_margin if margin is None else margin
-        pin = self.obs.pinhole
         pts = self.body.joints(np.asarray(pose)[None])[0] if pose is not None else None
-        if self.opt.crop:
-            if pts is None:
-                pts = foreground_points(z, pin)
-                if len(pts) == 0:
-                    pts = pin.center[None] + pin.R[2] * 3.0  # nothing seen: look 3 m ahead
-            cam, zc = crop_camera(pin, pts, self.opt.tile, margin)
-            if self.engine is None:
-                self._make_engine(cam)
-            else:  # keeps the compiled programs and buffers: only the window moves
-                self.engine.set_camera(0, cam)
-                self.view = cam
-            self.engine.set_depth(0, resample_depth(z, pin, cam))
-        else:
-            self.engine.set_depth(0, z)
-            cam = self.engine.views[0].cam_tile
-            zc = float(np.median((pts @ pin.R.T + pin.t)[:, 2])) if pts is not None else 3.0
-        a_px = zc * zc / (cam.fx * cam.fy)
-        self.weight = a_px / self.opt.area_unit if self.opt.area_unit > 0 else 1.0
+        self.likelihood.set_view(z, pts, margin)
 
     def observe(self, frame, pose=None):
         """Read frame ``frame``, upload it around ``pose`` (default: the prediction) and return
@@ -444,28 +296,14 @@ class HillClimbDepthTracker(Tracker):
     def predict(self):
         return self.body.dofs.validate(self.x + self.opt.velocity_damping * self.v)[0]
 
-    def perturb(self, part: str, radians: float):
-        """Add ``radians`` to every rotation DOF of limb ``part`` of the current state (a
-        recovery test: the tracker has lost that limb). Velocity is left as it was."""
-        if part not in self.parts:
-            raise ValueError(f"perturb_part must be one of {sorted(self.parts)}, got {part!r}")
+    def transform_state(self, fn):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
-        d = self.body.dofs
-        x = self.x.copy()
-        idx = self.parts[part]
-        x[idx] = np.clip(x[idx] + radians, d.lower[idx], d.upper[idx])
-        self.x = x
-        log.info("perturbed %s by %.2f rad", part, radians)
-
-    def _maybe_perturb(self, frame):
-        if self.opt.perturb_frame >= 0 and frame == self.opt.perturb_frame:
-            self.perturb(self.opt.perturb_part, self.opt.perturb_rad)
+        self.x = self.body.dofs.validate(fn(self.x[None]))[0]
 
     def step(self, frame):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
-        self._maybe_perturb(frame)
         self.observe(frame)
         x_pred = self.predict()
         res = self.refine(x_pred, x_pred)
@@ -501,17 +339,11 @@ class HillClimbDepthTracker(Tracker):
         self.set_view(z, x, margin=max(self.opt.crop_margin, 0.5))
         wide = 6.0 * self.sigma
         wide[:3] = 0.3
-        flat = self.opt.prior_weight
-        self.opt.prior_weight = 0.0
-        try:
-            for _ in range(3):
-                x = self.refine(x, x, steps=wide, extra=0).x
-                wide = wide * 0.5
-        finally:
-            self.opt.prior_weight = flat
+        for _ in range(3):  # no prior: there is no motion to predict from yet
+            x = self.refine(x, x, steps=wide, extra=0, prior_weight=0.0).x
+            wide = wide * 0.5
         return x
 
     def close(self):
-        if self.engine is not None:
-            self.engine.release()
+        self.likelihood.release()
         self.programs.release()

@@ -52,7 +52,7 @@ from gltrack.evidence.parts import PART_CLASSES, PartModel
 
 from .base import FrameEstimate
 from .depth import DepthOptions, HillClimbDepthTracker
-from .runner import register
+from .options import at_least, positive, within
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,13 @@ class EvidenceOptions(DepthOptions):
     control_refine: bool = False
     reach_slack: float = 0.1
     nearest_part: bool = True
+
+    def problems(self):
+        return super().problems() + [
+            *positive(self, "ik_sigmas", "meas_std"),
+            *at_least(self, 0, "prune_radius", "accept_margin"),
+            *at_least(self, 1, "refine_levels", "max_passes"),
+            *within(self, "min_confidence", 0, 1)]
 
 
 def default_parts_model() -> Path:
@@ -136,7 +143,6 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
     def step(self, frame):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
-        self._maybe_perturb(frame)
         z = self.observe(frame)
         x_pred = self.predict()
         cost = self.objective(x_pred)
@@ -168,6 +174,3 @@ class EvidenceOnlyDepthTracker(EvidenceDepthTracker):
     method = "ep"
     climb_first = False
 
-
-register("hc+ep", "depth", "gltrack.track.ep:EvidenceDepthTracker", "gltrack.track.ep:EvidenceOptions")
-register("ep", "depth", "gltrack.track.ep:EvidenceOnlyDepthTracker", "gltrack.track.ep:EvidenceOptions")

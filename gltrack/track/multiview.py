@@ -12,13 +12,15 @@ Motion model (``prior``): ``"diffusion"`` (default), each particle keeps its las
 diffused with zero-mean Gaussian noise of the body-part dependent inter-frame standard deviations
 (``DofSet.sigma_at(fps)`` times ``sigma_scale``), clamped
 to the joint limits; or ``"vlmm"``, the learnt behaviour model ``prior_model`` (``gltrack learn``,
-:class:`gltrack.track.vlmm.VlmmPrior`) predicts every particle once per frame and replaces the
+:class:`gltrack.motion.vlmm_prior.VlmmPrior`) predicts every particle once per frame and replaces the
 first diffusion layer of each sampler stage (``prior_diffusion`` sigmas of Gaussian noise remain
 there; the annealing layers after it diffuse as usual). The resampled particle set of one
 frame is the prior of the next; with ``"vlmm"`` each resampled particle inherits the VLMM history
 of the predicted particle it descends from (``VlmmPrior.follow``).
 
-Observation per frame and colour camera (all images undistorted first, masks with nearest
+The observation and the likelihood are :class:`gltrack.observe.multiview.MultiviewObservation`
+and :class:`gltrack.observe.multiview.SilhouetteLikelihood`; the samplers are
+:mod:`gltrack.sample`'s. Observation per frame and colour camera (all images undistorted first, masks with nearest
 neighbour; the engine renders the undistorted pinhole cameras):
 
 * I_F, the foreground mask: the dataset's ``CAM_mask`` (background subtraction done when the data
@@ -42,7 +44,8 @@ hierarchical sampler re-scores its combined pipeline sets in one batch (``reweig
 
 ``weights="exp"`` is a sharper alternative: ``w = exp(-lambda (e_S - min e_S) / A)`` times
 ``exp(lambda_A (c_A - max c_A) / A)`` with ``A`` the unblocked foreground area of the frame (pixels
-at tile resolution, all cameras). It is a proper likelihood up to a per-batch constant, so plain SIR
+at tile resolution, all cameras), i.e. :func:`gltrack.sample.weights.cost_weights` of the cost
+``lambda (e_S - lambda_A / lambda c_A) / A``. It is a proper likelihood up to a per-batch constant, so plain SIR
 and PS (whose single-layer partitions weight with exponent 1) actually concentrate; the annealed
 methods pick their own exponent and barely change with it.
 
@@ -57,18 +60,19 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import ClassVar
 
-import cv2
 import numpy as np
 
-from gltrack.render.engine import ScoringEngine
+from gltrack.motion.vlmm_prior import vlmm_prior
+from gltrack.observe.multiview import FOREGROUNDS, MultiviewObservation, SilhouetteLikelihood
 from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, PartitionedSampler,
-                            SIRFilter, StateSpace, bandouch_weights, default_partitions,
-                            default_pipelines, fine_partitions)
+                            SIRFilter, StateSpace, bandouch_weights, cost_weights,
+                            default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 
 from .base import FrameEstimate, Tracker
-from .runner import register
+from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
 
@@ -79,25 +83,17 @@ METHOD_DEFAULTS = {"sir": (800, 1), "apf": (800, 10), "ps": (1600, 1), "hps": (2
 
 ESTIMATES = ("mean", "best")
 WEIGHTS = ("bandouch", "exp")
-FOREGROUNDS = ("auto", "dataset", "background")
 PRIORS = ("diffusion", "vlmm")
 APPEARANCE_INITS = ("full", "tile")
 
 
 @dataclass
-class MultiviewOptions:
-    """Options of the multi-view trackers (``--config`` keys; the DOF preset is ``--dof``).
+class MultiviewOptions(Options):
+    """Options of the multi-view trackers (``--config`` keys; the DOF preset is ``--dof``);
+    these are all of ``sir``'s, :class:`AnnealedOptions` and :class:`HpsOptions` add the
+    annealing schedules.
 
     particles : particles per frame; 0 = the method's default (sir 800, apf 800, ps 1600, hps 200)
-    layers : 0 = the method's default; apf: annealing layers (10); hps: most torso layers (6);
-        ps: annealing layers per partition (1 = plain partitioned sampling); ignored by sir
-    limb_layers, joint_layers : hps: layers per limb partition of the left-first / right-first
-        pipelines, and per partition of the paired (both arms, both legs) pipeline
-    survival : target survival rate ESS/N of every annealing layer; 0 = the sampler's default
-        (0.5 for apf and ps, 0.3 for hps)
-    min_spread : hps: stop torso annealing once every torso DOF's weighted standard deviation is
-        below ``min_spread`` inter-frame sigmas (Bandouch's variance threshold); 0 = off
-    diffusion : "covariance" (default), "layer_variance" or "constant" layer noise
     sigma_scale : multiplier of the motion model's inter-frame sigmas ``DofSet.sigma_at(fps)``
         (1, default: the 30 frames/s sigmas scaled by ``30 / fps``); 0 = ``sqrt(fps / 30)``, the
         random-walk scaling ``sqrt(30 / fps)``. On the 15 frames/s demo data 0.5, 0.7 and 1
@@ -120,18 +116,16 @@ class MultiviewOptions:
         diffusion (0 = Bandouch's "last state + diffusion"; 1 = constant velocity)
     prior : motion model, "diffusion" (Gaussian, default) or "vlmm" (learnt behaviour model)
     prior_model : path of the behaviour model .npz (``gltrack learn``); required with "vlmm"
+        (``--behaviour`` sets it and implies ``prior = "vlmm"``)
     prior_lam : noise attenuation of the behaviour model's local dynamics (eq. 4 of Caillette)
     prior_diffusion : Gaussian diffusion (in inter-frame sigmas) each sampler stage still adds in
         its first layer after the behaviour model's prediction
     """
 
+    FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
+    IMPLIES: ClassVar[dict] = {"prior_model": {"prior": "vlmm"}}
+
     particles: int = 0
-    layers: int = 0
-    limb_layers: int = 2
-    joint_layers: int = 4
-    survival: float = 0.0
-    min_spread: float = 0.0
-    diffusion: str = "covariance"
     sigma_scale: float = 1.0
     tile: int = 64
     appearance: bool = True
@@ -150,117 +144,70 @@ class MultiviewOptions:
     prior_lam: float = 0.5
     prior_diffusion: float = 0.5
 
-    def __post_init__(self):
-        def choice(name, allowed):
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"option {name} must be one of {', '.join(allowed)}, "
-                                 f"got {getattr(self, name)!r}")
-
-        choice("diffusion", VARIANTS)
-        choice("estimate", ESTIMATES)
-        choice("weights", WEIGHTS)
-        choice("foreground", FOREGROUNDS)
-        choice("prior", PRIORS)
-        choice("appearance_init", APPEARANCE_INITS)
+    def problems(self):
+        bad = super().problems() + [
+            *choice(self, "estimate", ESTIMATES), *choice(self, "weights", WEIGHTS),
+            *choice(self, "foreground", FOREGROUNDS), *choice(self, "prior", PRIORS),
+            *choice(self, "appearance_init", APPEARANCE_INITS),
+            *at_least(self, 0, "prior_lam", "prior_diffusion", "particles", "appearance_refine",
+                      "sigma_scale", "shape_weight", "appearance_weight"),
+            *positive(self, "sharpness")]
         if self.prior == "vlmm" and not self.prior_model:
-            raise ValueError("option prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour "
-                             "model written by gltrack learn)")
-        if self.prior_lam < 0 or self.prior_diffusion < 0:
-            raise ValueError("options prior_lam and prior_diffusion must be >= 0")
-        for name in ("particles", "layers", "appearance_refine"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"option {name} must be >= 0, got {getattr(self, name)}")
-        for name in ("limb_layers", "joint_layers"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"option {name} must be >= 1, got {getattr(self, name)}")
-        if not 0.0 <= self.survival < 1.0:
-            raise ValueError(f"option survival must be in [0, 1), got {self.survival}")
-        if not self.sigma_scale >= 0:
-            raise ValueError(f"option sigma_scale must be >= 0, got {self.sigma_scale}")
-        if self.min_spread < 0 or self.sharpness <= 0:
-            raise ValueError("options min_spread must be >= 0 and sharpness > 0")
-        if self.shape_weight < 0 or self.appearance_weight < 0 or \
-                self.shape_weight + self.appearance_weight <= 0:
-            raise ValueError("options shape_weight and appearance_weight must be >= 0, not both 0")
+            bad.append("prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour model "
+                       "written by gltrack learn)")
+        if self.shape_weight + self.appearance_weight <= 0:
+            bad.append("shape_weight and appearance_weight are both 0")
         t = self.tile
         if t < 16 or t > 512 or t & (t - 1):
-            raise ValueError(f"option tile must be a power of two in 16..512, got {t}")
+            bad.append(f"tile = {t} (a power of two in 16..512)")
+        return bad
 
 
-# ---------------------------------------------------------------------------------------------
-# observation
+@dataclass
+class AnnealedOptions(MultiviewOptions):
+    """Options of ``apf`` and ``ps``: those of :class:`MultiviewOptions` plus
 
-
-class MultiviewObservation:
-    """Per-frame colour images and foreground masks of a dataset's colour cameras, undistorted.
-
-    Parameters
-    ----------
-    dataset : gltrack.data.dataset.Dataset
-    options : MultiviewOptions
-    rng : numpy.random.Generator, optional, picks background training frames
-
-    Attributes
-    ----------
-    index : list of int, dataset camera index of each colour camera
-    cameras : list of Camera, as calibrated; pinholes : their undistorted twins
-    polygons : list of (H, W) bool, occluder polygons (undistorted), all False without any
+    layers : 0 = the method's default; apf: annealing layers (10); ps: annealing layers per
+        partition (1 = plain partitioned sampling); hps: most torso layers (6)
+    survival : target survival rate ESS/N of every annealing layer; 0 = the sampler's default
+        (0.5 for apf and ps, 0.3 for hps)
+    diffusion : "covariance" (default), "layer_variance" or "constant" layer noise
     """
 
-    def __init__(self, dataset, options: MultiviewOptions, rng=None):
-        self.dataset = dataset
-        self.index = [i for i, c in enumerate(dataset.cameras) if c.kind == "colour"]
-        if not self.index:
-            raise ValueError(f"{dataset.path}: the multi-view trackers need colour cameras")
-        self.cameras = [dataset.cameras[i] for i in self.index]
-        self.pinholes = [c.undistorted() for c in self.cameras]
-        self.polygons = [self._undistort(c, dataset.blocking_mask(i).astype(np.uint8)) != 0
-                         for c, i in zip(self.cameras, self.index)]
-        has_masks = [dataset.mask(0, i) is not None for i in self.index] if dataset.frames else []
-        mode = options.foreground
-        if mode == "auto":
-            mode = "dataset" if has_masks and all(has_masks) else "background"
-        if mode == "dataset" and not all(has_masks):
-            missing = [c.name for c, h in zip(self.cameras, has_masks) if not h]
-            raise ValueError(f"{dataset.path}: no foreground masks for cameras {missing} "
-                             "(use foreground = \"background\")")
-        self.mode = mode
-        self.rng = rng
-        self._bg = {}
+    layers: int = 0
+    survival: float = 0.0
+    diffusion: str = "covariance"
 
-    @staticmethod
-    def _undistort(cam, img, interpolation=cv2.INTER_NEAREST):
-        return cam.undistort_image(img, interpolation) if np.any(cam.dist) else img
-
-    def _background_model(self, k):
-        if k not in self._bg:
-            from gltrack.observe.background import BackgroundModel
-
-            frames = self.dataset.backgrounds(self.index[k])
-            if not frames:
-                raise ValueError(f"{self.dataset.path}: camera {self.cameras[k].name} has neither "
-                                 "foreground masks nor empty-scene frames for background subtraction")
-            self._bg[k] = BackgroundModel().fit(frames, rng=self.rng)
-        return self._bg[k]
-
-    def __call__(self, frame: int) -> tuple[list, list]:
-        """Undistorted colour images (C of (H, W, 3) uint8 BGR) and foreground masks ((H, W) bool)."""
-        images, masks = [], []
-        for k, (cam, i) in enumerate(zip(self.cameras, self.index)):
-            bgr = self.dataset.colour(frame, i)
-            fg = self.dataset.mask(frame, i) if self.mode == "dataset" else \
-                self._background_model(k).foreground(bgr)
-            images.append(self._undistort(cam, bgr, cv2.INTER_LINEAR))
-            masks.append(self._undistort(cam, fg.astype(np.uint8)) != 0)
-        return images, masks
+    def problems(self):
+        return super().problems() + [*choice(self, "diffusion", VARIANTS),
+                                     *at_least(self, 0, "layers"),
+                                     *within(self, "survival", 0.0, 1.0, open_hi=True)]
 
 
-# ---------------------------------------------------------------------------------------------
-# the tracker
+@dataclass
+class HpsOptions(AnnealedOptions):
+    """Options of ``hps``: those of :class:`AnnealedOptions` plus
+
+    limb_layers, joint_layers : layers per limb partition of the left-first / right-first
+        pipelines, and per partition of the paired (both arms, both legs) pipeline
+    min_spread : stop torso annealing once every torso DOF's weighted standard deviation is
+        below ``min_spread`` inter-frame sigmas (Bandouch's variance threshold); 0 = off
+    """
+
+    limb_layers: int = 2
+    joint_layers: int = 4
+    min_spread: float = 0.0
+
+    def problems(self):
+        return super().problems() + [*at_least(self, 1, "limb_layers", "joint_layers"),
+                                     *at_least(self, 0, "min_spread")]
 
 
 def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
     """The sampler of ``method`` for a ``DofSet`` at ``fps``, and its particle count.
+
+    ``opt`` is the method's options class (:class:`MultiviewOptions` for sir,
+    :class:`AnnealedOptions` for apf and ps, :class:`HpsOptions` for hps).
 
     Returns
     -------
@@ -270,12 +217,13 @@ def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
         raise ValueError(f"unknown multi-view method {method!r}; choose one of "
                          f"{', '.join(METHOD_DEFAULTS)}")
     n_def, l_def = METHOD_DEFAULTS[method]
-    n, layers = opt.particles or n_def, opt.layers or l_def
+    n = opt.particles or n_def
     scale = opt.sigma_scale or float(np.sqrt(fps / 30.0))
     space = StateSpace(dofs.lower, dofs.upper, scale * dofs.sigma_at(fps))
-    kw = {"alpha": opt.survival} if opt.survival else {}
     if method == "sir":
         return SIRFilter(space), n
+    layers = opt.layers or l_def
+    kw = {"alpha": opt.survival} if opt.survival else {}
     if method == "apf":
         return AnnealedParticleFilter(space, layers=layers, diffusion=opt.diffusion, **kw), n
     if method == "ps":
@@ -291,88 +239,57 @@ def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
 class MultiviewTracker(Tracker):
     """Bandouch's multi-camera tracker; subclasses fix the sampler (``method``).
 
+    The composition: :class:`~gltrack.observe.multiview.MultiviewObservation` and
+    :class:`~gltrack.observe.multiview.SilhouetteLikelihood` (observation and likelihood),
+    Gaussian diffusion or :class:`~gltrack.motion.vlmm_prior.VlmmPrior` (motion prior) and the
+    method's sampler from :mod:`gltrack.sample` (:func:`make_sampler`).
+
     Parameters
     ----------
     dataset : gltrack.data.dataset.Dataset, a multiview dataset with colour cameras
     body : gltrack.body.model.BodyModel
     ctx : moderngl.Context
-    options : MultiviewOptions
+    options : the method's options (see :func:`make_sampler`)
     rng : numpy.random.Generator
     """
 
     method = "hps"
+    options_class = HpsOptions
 
     def __init__(self, dataset, body, ctx, options: MultiviewOptions | None = None, rng=None):
-        self.opt = options or MultiviewOptions()
+        self.opt = (options or self.options_class()).validate()
         self.body = body
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.obs = MultiviewObservation(dataset, self.opt, self.rng)
+        self.obs = MultiviewObservation(dataset, self.opt.foreground, self.rng)
         self.fps = dataset.fps
-        self.engine = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, self.obs.pinholes,
-                                    tile=self.opt.tile)
-        self.env = None
-        if self.opt.environment:
-            from gltrack.observe.environment import EnvironmentLayers
-
-            self.env = EnvironmentLayers(ctx, self.obs.pinholes, programs=self.engine.programs)
+        self.likelihood = SilhouetteLikelihood(
+            ctx, body, self.obs, tile=self.opt.tile, appearance=self.opt.appearance,
+            blocking="layers" if self.opt.environment else "none")
+        self.engine = self.likelihood.engine
         self.sampler, self.n = make_sampler(self.method, body.dofs, dataset.fps, self.opt)
         self.prior = None
         if self.opt.prior == "vlmm":
-            from .vlmm import vlmm_prior
-
             self.prior = vlmm_prior(self.opt.prior_model, body.dofs, dataset.fps,
                                     lam=self.opt.prior_lam)
-        self.use_appearance = bool(self.opt.appearance)
-        self.channels = ["silhouette", "appearance"] if self.use_appearance else ["silhouette"]
-        self.appearance = None
         self.particles = None
-        self.area = 1.0
         self.frames_done = 0
 
-    # -- observation ----------------------------------------------------------------------
-    def _human_lut(self):
-        if self.appearance is not None:
-            return self.appearance.human_lut()
-        from gltrack.observe.hls import N_VOXELS
+    @property
+    def appearance(self):
+        """The colour model (None before :meth:`start` or without appearance)."""
+        return self.likelihood.appearance
 
-        return np.ones(N_VOXELS, bool)
+    @property
+    def area(self) -> float:
+        return self.likelihood.area
 
     def observe(self, frame: int):
-        """Read frame ``frame`` and upload masks (and colour bits) to the engine.
+        """Read frame ``frame`` and upload it (see :meth:`SilhouetteLikelihood.observe`)."""
+        return self.likelihood.observe(frame)
 
-        Returns
-        -------
-        images : list of (H, W, 3) uint8; fg : list of (H, W) bool, the foreground as scored;
-        block : list of (H, W) bool, pixels the costs ignore
-        """
-        images, masks = self.obs(frame)
-        fgs, blocks = [], []
-        lut = self._human_lut() if self.env is not None else None
-        for c, (img, fg) in enumerate(zip(images, masks)):
-            if self.env is not None:
-                fg, block = self.env.apply(c, fg, img, self.obs.polygons[c], lut)
-            else:
-                block = np.zeros_like(fg)
-            self.engine.set_masks(c, fg, block)
-            if self.appearance is not None:
-                from gltrack.observe.hls import observed_bits
-
-                self.engine.set_appearance(c, observed_bits(img), self.appearance.tri_bits())
-            fgs.append(fg)
-            blocks.append(block)
-        T = self.engine.tile
-        self.area = max(1.0, float(sum(
-            np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
-                                        interpolation=cv2.INTER_NEAREST_EXACT)) for f, b in zip(fgs, blocks))))
-        return images, fgs, blocks
-
-    # -- weights --------------------------------------------------------------------------
     def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Silhouette error e_S (N,) and appearance count c_A (N,) or None, summed over cameras."""
-        r = self.engine.score(self.body.skinning(np.atleast_2d(X)), self.channels)
-        e_s = r[:, :, 1].sum(axis=1)
-        c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
-        return e_s, c_a
+        return self.likelihood.scores(X)
 
     def weights(self, X: np.ndarray) -> np.ndarray:
         """(N,) non-negative particle weights, larger = better (see the module docstring)."""
@@ -382,29 +299,30 @@ class MultiviewTracker(Tracker):
             # Without c_A, alpha only scales every weight: use 1 so shape_weight = 0 stays valid.
             alpha = o.shape_weight if c_a is not None else 1.0
             return bandouch_weights(e_s, c_a, alpha, o.appearance_weight)
-        z = -o.sharpness * (e_s - e_s.min()) / self.area
+        cost = e_s
         if c_a is not None:
-            total = o.shape_weight + o.appearance_weight
-            z = (o.shape_weight * z + o.appearance_weight * o.sharpness
-                 * (c_a - c_a.max()) / self.area) / total
-        return np.exp(z)
+            cost = (o.shape_weight * e_s - o.appearance_weight * c_a) / \
+                (o.shape_weight + o.appearance_weight)
+        return cost_weights(cost, self.area / o.sharpness).W
 
     # -- tracking -------------------------------------------------------------------------
     def start(self, frame, params, velocity=None):
         x = self.body.dofs.validate(params)[0]
         self.particles = np.repeat(x[None], self.n, axis=0)
-        if self.use_appearance:
-            from gltrack.observe.appearance import AppearanceModel
-
+        if self.opt.appearance:
             images, masks = self.obs(frame)
-            self.appearance = AppearanceModel.from_first_frame(
-                self.body.mesh, self.body.skinning(x[None])[0], self.obs.pinholes, images, masks,
-                engine=self.engine if self.opt.appearance_init == "tile" else None, rng=self.rng)
+            self.likelihood.init_appearance(x, images, masks, rng=self.rng,
+                                            full=self.opt.appearance_init == "full")
         if self.prior is not None:
             self.prior.reset(self.particles, self.rng)
         self.frames_done = 0
         self.last = x
         self.velocity = np.zeros_like(x) if velocity is None else np.asarray(velocity, float)
+
+    def transform_state(self, fn):
+        if self.particles is None:
+            raise RuntimeError("start() the tracker first")
+        self.particles = self.body.dofs.validate(fn(self.particles))
 
     def step(self, frame):
         if self.particles is None:
@@ -425,8 +343,7 @@ class MultiviewTracker(Tracker):
         self.frames_done += 1
         k = self.opt.appearance_refine
         if self.appearance is not None and k and self.frames_done % k == 0:
-            self.appearance.refine(self.body.skinning(x[None])[0], self.obs.pinholes, images, fgs,
-                                   engine=self.engine)
+            self.likelihood.refine_appearance(x, images, fgs)
         info = {"e_s": float(e_s[0]), "foreground_px": self.area,
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if c_a is not None:
@@ -436,37 +353,32 @@ class MultiviewTracker(Tracker):
         return FrameEstimate(x, float(e_s[0]), int(res.evaluations) + 1, info)
 
     def close(self):
-        if self.env is not None:
-            self.env.release()
-            self.env = None
-        self.engine.release()
+        self.likelihood.release()
 
 
 class SIRTracker(MultiviewTracker):
     """Sampling importance resampling (Condensation) on the multi-view observation."""
 
     method = "sir"
+    options_class = MultiviewOptions
 
 
 class APFTracker(MultiviewTracker):
     """Deutscher's annealed particle filter on the multi-view observation."""
 
     method = "apf"
+    options_class = AnnealedOptions
 
 
 class PSTracker(MultiviewTracker):
     """MacCormick & Isard's partitioned sampling on the multi-view observation."""
 
     method = "ps"
+    options_class = AnnealedOptions
 
 
 class HPSTracker(MultiviewTracker):
     """Bandouch's hierarchical sampling with parallel limb pipelines."""
 
     method = "hps"
-
-
-for _name, _cls in (("sir", "SIRTracker"), ("apf", "APFTracker"), ("ps", "PSTracker"),
-                    ("hps", "HPSTracker")):
-    register(_name, "multiview", f"gltrack.track.multiview:{_cls}",
-             "gltrack.track.multiview:MultiviewOptions")
+    options_class = HpsOptions

@@ -1,12 +1,14 @@
 """Run a tracker over a dataset and write the results folder frame by frame (crash-safe).
 
-``METHODS`` maps each ``--method`` name to the rig it needs and a factory. The runner owns the
-GL context, the results writer (``frames.jsonl`` appended per frame, ``--resume`` continues after
-the last finished frame) and the final ``poses.npz`` / ``timing.json`` / ``poses.bvh``.
+The method comes from :data:`gltrack.track.registry.METHODS`. The runner owns the GL context,
+the results writer (``frames.jsonl`` appended per frame, ``--resume`` continues after the last
+finished frame) and the final ``poses.npz`` / ``timing.json`` / ``poses.bvh``.
+
+Hooks: ``track(..., hooks=[h])`` calls ``h(tracker, frame)`` before every frame is tracked;
+the benches inject faults this way (``gltrack.bench.faults``) without the trackers knowing.
 """
 from __future__ import annotations
 
-import importlib
 import logging
 import time
 from pathlib import Path
@@ -16,50 +18,11 @@ import numpy as np
 from gltrack.body.model import body_from_meta
 from gltrack.data.dataset import Dataset
 from gltrack.data.results import ResultsWriter
+from gltrack.export.bvh import write_params_bvh
 
-from .base import options_from_dict
+from .registry import method as lookup
 
 log = logging.getLogger(__name__)
-
-#: method -> (rig, "module:Class", "module:OptionsClass")
-METHODS = {
-    "hc": ("depth", "gltrack.track.depth:HillClimbDepthTracker", "gltrack.track.depth:DepthOptions"),
-}
-
-
-def register(name, rig, tracker, options):
-    """Add a tracking method (used by the tracker modules that extend the registry)."""
-    METHODS[name] = (rig, tracker, options)
-
-
-def _load(spec):
-    mod, _, attr = spec.partition(":")
-    return getattr(importlib.import_module(mod), attr)
-
-
-def _extend_registry():
-    # Trackers beyond plain HC live in optional modules that add themselves when imported.
-    for mod in ("gltrack.track.ep", "gltrack.track.multiview", "gltrack.track.vlmm",
-                "gltrack.track.blobfilter"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
-
-
-def available_methods() -> dict:
-    _extend_registry()
-    return dict(METHODS)
-
-
-def options_class(method: str):
-    """The options dataclass of ``method`` (its fields are the method's ``--config`` keys)."""
-    methods = available_methods()
-    if method not in methods:
-        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(methods))}")
-    return _load(methods[method][2])
-
 
 def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
     """The pose to start from: ``"groundtruth"``, ``"auto"`` or a path to a .npy/.npz pose file."""
@@ -92,7 +55,8 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
 
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "groundtruth",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
-          preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None) -> dict:
+          preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
+          hooks=()) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
@@ -103,6 +67,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     frames : (start, stop), optional sub-range of the dataset's frames
     preset : DOF preset overriding the dataset's body record
     progress : show a tqdm progress bar
+    hooks : callables ``hook(tracker, frame)`` run before each frame is tracked (fault injection)
 
     Returns
     -------
@@ -111,23 +76,19 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     from tqdm import tqdm
 
     from gltrack.gl.context import shared_context
-    from gltrack.motion.export import write_params_bvh
 
-    methods = available_methods()
-    if method not in methods:
-        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(methods))}")
-    rig, tracker_spec, options_spec = methods[method]
+    m = lookup(method)
     ds = Dataset.open(dataset_path)
-    if ds.rig != rig:
-        raise ValueError(f"{ds.path}: method {method!r} needs a {rig} dataset, this one is {ds.rig!r}")
-    opts = options_from_dict(_load(options_spec), options, where=f"options for {method}")
+    if ds.rig != m.rig:
+        raise ValueError(f"{ds.path}: method {method!r} needs a {m.rig} dataset, this one is {ds.rig!r}")
+    opts = m.options.from_dict(options, where=f"options for {method}")
     body = body_from_meta(ds.body, preset, where=str(Path(ds.path) / "meta.json"))
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
         raise ValueError(f"frames {start}:{stop} outside the dataset's 0:{ds.frames}")
     ctx = ctx or shared_context()
     rng = np.random.default_rng(seed)
-    tracker = _load(tracker_spec)(ds, body, ctx, opts, rng)
+    tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
                            resume=resume, overwrite=overwrite)
     try:
@@ -146,6 +107,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
                    disable=not progress, leave=False)
         for f in bar:
+            for hook in hooks:
+                hook(tracker, f)
             t0 = time.perf_counter()
             est = tracker.step(f)
             secs = time.perf_counter() - t0

@@ -1,8 +1,9 @@
 """The voxel / blob / KL likelihood of Caillette, Galata & Howard (2008, sec. 6), per frame.
 
 One :class:`BlobEvidence` serves every tracker that scores particles the paper's way (``vlmm``
-with ``evaluation = "blobs"``, ``condensation``, ``apf-blobs``), so those methods differ in their
-motion model only:
+with ``evaluation = "blobs"``, ``condensation``, ``apf-blobs``; their options are
+:class:`gltrack.track.blobfilter.BlobEvidenceOptions`), so those methods differ in their motion
+model only:
 
 1. **voxels** - hierarchical shape-from-silhouette reconstruction of the tracking volume,
    either from the dataset's foreground masks (:func:`gltrack.observe.voxels.carve`,
@@ -23,17 +24,17 @@ from __future__ import annotations
 import logging
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from gltrack.observe.blobs import (BlobModel, bgr_to_yuv, fit_blobs, mixture_kl, mixture_loglik,
-                                   part_colours)
-from gltrack.observe.voxels import carve, point_colours
+from .blobs import BlobModel, bgr_to_yuv, fit_blobs, mixture_kl, mixture_loglik, part_colours
+from .voxels import carve, point_colours
 
 log = logging.getLogger(__name__)
 
 SEGMENTATIONS = ("masks", "colour")
+#: a best-particle KL above this (nats) flags a lost frame by default
+LOST_KL = 25.0
 #: timed stages, keys of :attr:`BlobEvidence.seconds`
 STAGES = ("voxels", "blob_fit", "evaluation")
 
@@ -49,43 +50,6 @@ def default_volume(cameras) -> np.ndarray:
         b += M @ c.center
     p = np.linalg.lstsq(A, b, rcond=None)[0]
     return np.array([p[0] - 1.5, -0.1, p[2] - 1.5, p[0] + 1.5, 2.5, p[2] + 1.5])
-
-
-@dataclass
-class BlobEvidenceOptions:
-    """The likelihood's options, shared by ``vlmm``, ``condensation`` and ``apf-blobs``
-    (``--config`` keys; see :class:`BlobEvidence`).
-
-    volume : tracking volume [xmin, ymin, zmin, xmax, ymax, zmax], metres; empty = 3 m x 3 m
-        around the point the cameras look at, floor to 2.5 m
-    base, max_depth, tolerance : voxel reconstruction (max_depth 3 = the paper's depth 7)
-    segmentation : "masks" (the dataset's foreground masks) or "colour" (chi-square test of
-        pixel samples against the background frames, the paper's own)
-    fit_iterations : EM iterations of the blob fit
-    colour : coloured blobs (the fit weighs the voxels' colours; false: shape only)
-    colour_frames : first frames over which the blobs' colours are acquired from the estimates
-    perturb_frame, perturb_rad, perturb_shift : failure injection for the recovery benchmark
-        (:func:`gltrack.track.blobfilter.inject_failure`; -1 = never)
-    """
-
-    volume: list = field(default_factory=list)
-    base: int = 16
-    max_depth: int = 3
-    tolerance: int = 0
-    segmentation: str = "masks"
-    fit_iterations: int = 4
-    colour: bool = True
-    colour_frames: int = 5
-    perturb_frame: int = -1
-    perturb_rad: float = 1.5
-    perturb_shift: float = 0.5
-
-    def evidence(self, dataset, body) -> "BlobEvidence":
-        """The :class:`BlobEvidence` these options describe."""
-        return BlobEvidence(dataset, body, volume=self.volume, base=self.base,
-                            max_depth=self.max_depth, tolerance=self.tolerance,
-                            segmentation=self.segmentation, fit_iterations=self.fit_iterations,
-                            colour=self.colour)
 
 
 class BlobEvidence:

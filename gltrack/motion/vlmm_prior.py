@@ -1,0 +1,171 @@
+"""The learnt behaviour model (Caillette et al. 2008) as a particle motion prior.
+
+:class:`VlmmPrior` keeps every particle's feature vector ``X = (angles, velocities)`` and VLMM
+state and moves the modelled joint angles with :meth:`BehaviourModel.predict` (eq. 3: jump to a
+cluster drawn from ``N(X | cluster) * gamma(q, k)``; eq. 4: local second-order dynamics with the
+cluster's own covariance as noise). The six root parameters, which the model does not describe,
+and any joint angle of the body that the model does not cover, get plain Gaussian diffusion.
+Any particle sampler of :mod:`gltrack.sample` takes it as its ``predict_fn``.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from scipy.special import logsumexp
+
+from .behaviour import BehaviourModel
+
+log = logging.getLogger(__name__)
+
+
+def _model_indices(model: BehaviourModel, dofs) -> np.ndarray:
+    if model.dof_names:
+        missing = [n for n in model.dof_names if n not in dofs.names]
+        if missing:
+            raise ValueError(f"behaviour model angles {missing[:3]} are not DOFs of the "
+                             f"{dofs.preset!r} body; track with the preset the model was learnt "
+                             f"with (--dof {model.info.get('preset', '25')})")
+        return np.array([dofs.index(n) for n in model.dof_names], dtype=np.int64)
+    if model.n_angles != dofs.size - 6:
+        raise ValueError(f"behaviour model has {model.n_angles} angles, the {dofs.preset!r} "
+                         f"body {dofs.size - 6}")
+    return np.arange(6, dofs.size)
+
+
+class VlmmPrior:
+    """The behaviour model as a particle motion model, keeping each particle's VLMM state.
+
+    Parameters
+    ----------
+    model : BehaviourModel
+    dofs : gltrack.body.dofs.DofSet of the tracked body (the model's angles are found by name)
+    fps : float, frame rate of the tracked data
+    lam : float, noise attenuation of the local dynamics (eq. 4)
+    root_scale : float, multiplier of the DOF set's root sigmas for the root diffusion
+    other_scale : float, multiplier of the sigmas of body angles the model does not cover
+
+    Use: :meth:`reset` with the start particles, then per frame ``x = prior.predict(x, rng)``;
+    after resampling call :meth:`select` with the resampling's ancestor indices
+    (``SampleResult.ancestors`` of a one-layer sampler), or, when annealing layers have moved
+    the particles since the prediction, :meth:`follow` with the sampler's output so every row
+    inherits the state of the predicted particle it came from.
+    """
+
+    def __init__(self, model: BehaviourModel, dofs, fps: float, *, lam: float = 0.5,
+                 root_scale: float = 1.0, other_scale: float = 1.0):
+        self.model, self.dofs, self.fps, self.lam = model, dofs, float(fps), float(lam)
+        if abs(model.fps - self.fps) > 1e-6 * self.fps:
+            log.warning("behaviour model learnt at %g frames/s, data at %g: cluster transitions "
+                        "will run at the wrong tempo (relearn with --fps %g)", model.fps,
+                        self.fps, self.fps)
+        self.idx = _model_indices(model, dofs)
+        a = model.n_angles
+        rest = np.setdiff1d(np.arange(6, dofs.size), self.idx)
+        self.other = rest
+        sig = dofs.sigma_at(self.fps)
+        self.root_sigma = root_scale * sig[:6]
+        self.other_sigma = other_scale * sig[rest]
+        self._a = a
+        self.X = None
+        self.states = None
+
+    # -- state bookkeeping -------------------------------------------------------------------
+    def _angle_cluster_logpost(self, angles):
+        """(N, K) log P(cluster | angles) from the clusters' angle marginals."""
+        g, a = self.model.gmm, self._a
+        mu, cov = g.means[:, :a], g.covs[:, :a, :a]
+        diff = angles[:, None, :] - mu[None]
+        L = np.linalg.cholesky(cov + 1e-9 * np.eye(a))
+        y = np.linalg.solve(L[None], diff[..., None])[..., 0]
+        logdet = 2 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
+        lp = -0.5 * (np.sum(y * y, axis=-1) + logdet) + np.log(g.weights)
+        return lp - logsumexp(lp, axis=1, keepdims=True)
+
+    def reset(self, particles, rng: np.random.Generator) -> None:
+        """Start histories for ``particles`` (N, D): each gets a cluster drawn from the posterior
+        of its joint angles, that cluster's mean velocity and the VLMM state of that cluster."""
+        P = self.dofs.validate(particles)
+        ang = P[:, self.idx]
+        lp = self._angle_cluster_logpost(ang)
+        k = self._draw(np.exp(lp), rng)
+        self.X = np.concatenate([ang, self.model.gmm.means[k, self._a:]], axis=1)
+        self.states = self._state_of(k)
+
+    def _state_of(self, clusters):
+        table = np.array([self.model.state_for([c]) for c in range(self.model.gmm.n_components)])
+        return table[np.asarray(clusters, dtype=np.int64)]
+
+    @staticmethod
+    def _draw(p, rng):
+        cdf = np.cumsum(p, axis=1)
+        u = rng.random(len(p))[:, None] * cdf[:, -1:]
+        return np.minimum(np.sum(cdf <= u, axis=1), p.shape[1] - 1)
+
+    def clusters(self) -> np.ndarray:
+        """(N,) current cluster of each particle (-1 without history)."""
+        return self.model.vlmm.last_symbol[self.states]
+
+    def predict(self, particles, rng: np.random.Generator) -> np.ndarray:
+        """Propagate (N, D) particles one frame; returns new (N, D) particles within the limits."""
+        P = self.dofs.validate(particles, clamp=False)
+        if self.X is None or len(self.X) != len(P):
+            self.reset(P, rng)
+        X = self.X.copy()
+        X[:, :self._a] = P[:, self.idx]  # a sampler may have moved the angles since
+        Xn, sn = self.model.predict(rng, X, self.states, lam=self.lam, dt=1.0 / self.fps)
+        out = P.copy()
+        out[:, self.idx] = Xn[:, :self._a]
+        out[:, :6] += rng.standard_normal((len(P), 6)) * self.root_sigma
+        if self.other.size:
+            out[:, self.other] += rng.standard_normal((len(P), self.other.size)) * self.other_sigma
+        out = self.dofs.validate(out)
+        Xn[:, :self._a] = out[:, self.idx]
+        self.X, self.states = Xn, sn
+        return out
+
+    def select(self, idx) -> None:
+        """Keep the histories of the rows ``idx`` (after resampling with these indices)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        self.X, self.states = self.X[idx], self.states[idx]
+
+    def follow(self, particles) -> None:
+        """Re-align histories with ``particles`` (N', D) that descend from the last prediction:
+        each row takes the state and velocity of its nearest predicted particle (in the
+        modelled angles; exact copies find themselves)."""
+        P = np.asarray(particles, dtype=np.float64)
+        ang = P[:, self.idx]
+        ref = self.X[:, :self._a]
+        nearest = np.empty(len(P), dtype=np.int64)
+        for s in range(0, len(P), 512):
+            d = np.sum((ang[s:s + 512, None, :] - ref[None]) ** 2, axis=-1)
+            nearest[s:s + 512] = np.argmin(d, axis=1)
+        self.select(nearest)
+        self.X[:, :self._a] = ang
+
+    def respawn(self, particles, clusters) -> None:
+        """Set histories of ``particles`` (N, D) to fresh ones in ``clusters`` (N,) (recovery)."""
+        P = np.asarray(particles, dtype=np.float64)
+        k = np.asarray(clusters, dtype=np.int64)
+        self.X = np.concatenate([P[:, self.idx], self.model.gmm.means[k, self._a:]], axis=1)
+        self.states = self._state_of(k)
+
+
+def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
+    """The behaviour prior for any particle tracker (the issue's ``--prior vlmm``).
+
+    Parameters
+    ----------
+    model : BehaviourModel or path to a model .npz written by ``gltrack learn``
+    dofs : DofSet of the tracked body
+    fps : float, frame rate of the tracked data
+    **kwargs : ``lam``, ``root_scale``, ``other_scale`` of :class:`VlmmPrior`
+
+    The samplers of :mod:`gltrack.sample` take it directly:
+    ``res = sampler.step(particles, weight_fn, rng, predict_fn=prior.predict)`` then
+    ``prior.follow(res.particles)`` (what the multi-view trackers do with ``prior = "vlmm"``) or
+    ``prior.select(res.ancestors)`` after a one-layer sampler (the ``vlmm`` tracker).
+    """
+    if not isinstance(model, BehaviourModel):
+        model = BehaviourModel.load(model)
+    return VlmmPrior(model, dofs, fps, **kwargs)

@@ -1,0 +1,206 @@
+"""The colour cameras as the multi-view trackers see them (Bandouch & Beetz 2009).
+
+* :class:`MultiviewObservation` reads a frame's colour images and foreground masks, undistorted
+  (masks from the dataset, or background subtraction on its empty-scene frames);
+* :class:`SilhouetteLikelihood` uploads them to the scoring engine, with the blocking layer of
+  :class:`~gltrack.observe.environment.EnvironmentLayers` and the HLS colour bits of an
+  :class:`~gltrack.observe.appearance.AppearanceModel` when asked, and scores N poses: the
+  silhouette XOR count ``e_S`` and the colour-consistent pixel count ``c_A``, summed over cameras.
+
+How the two channels become particle weights is the tracker's choice (Bandouch's eq. 2, or
+:func:`gltrack.sample.weights.cost_weights`).
+"""
+from __future__ import annotations
+
+import logging
+
+import cv2
+import numpy as np
+
+from gltrack.render.engine import ScoringEngine
+
+from . import hls
+from .appearance import AppearanceModel
+from .background import BackgroundModel
+from .environment import EnvironmentLayers
+
+log = logging.getLogger(__name__)
+
+FOREGROUNDS = ("auto", "dataset", "background")
+#: pixels the costs ignore: Bandouch's environment layers, the occluder polygons only, or none
+BLOCKING = ("layers", "polygons", "none")
+
+
+def undistort_mask(cam, mask) -> np.ndarray:
+    """(H, W) bool ``mask`` of camera ``cam`` undistorted with nearest neighbour."""
+    m = np.asarray(mask).astype(np.uint8)
+    return (cam.undistort_image(m, cv2.INTER_NEAREST) if np.any(cam.dist) else m) != 0
+
+
+class MultiviewObservation:
+    """Per-frame colour images and foreground masks of a dataset's colour cameras, undistorted.
+
+    Parameters
+    ----------
+    dataset : gltrack.data.dataset.Dataset
+    foreground : "auto" (the dataset's masks when every camera has them, else background
+        subtraction), "dataset" or "background"
+    rng : numpy.random.Generator, optional, picks background training frames
+
+    Attributes
+    ----------
+    index : list of int, dataset camera index of each colour camera
+    cameras : list of Camera, as calibrated; pinholes : their undistorted twins
+    polygons : list of (H, W) bool, occluder polygons (undistorted), all False without any
+    mode : "dataset" or "background", where the masks come from
+    """
+
+    def __init__(self, dataset, foreground: str = "auto", rng=None):
+        if foreground not in FOREGROUNDS:
+            raise ValueError(f"foreground must be one of {', '.join(FOREGROUNDS)}, got "
+                             f"{foreground!r}")
+        self.dataset = dataset
+        self.index = [i for i, c in enumerate(dataset.cameras) if c.kind == "colour"]
+        if not self.index:
+            raise ValueError(f"{dataset.path}: the multi-view trackers need colour cameras")
+        self.cameras = [dataset.cameras[i] for i in self.index]
+        self.pinholes = [c.undistorted() for c in self.cameras]
+        self.polygons = [undistort_mask(c, dataset.blocking_mask(i))
+                         for c, i in zip(self.cameras, self.index)]
+        has_masks = [dataset.mask(0, i) is not None for i in self.index] if dataset.frames else []
+        mode = foreground
+        if mode == "auto":
+            mode = "dataset" if has_masks and all(has_masks) else "background"
+        if mode == "dataset" and not all(has_masks):
+            missing = [c.name for c, h in zip(self.cameras, has_masks) if not h]
+            raise ValueError(f"{dataset.path}: no foreground masks for cameras {missing} "
+                             "(use foreground = \"background\")")
+        self.mode = mode
+        self.rng = rng
+        self._bg = {}
+
+    def _background_model(self, k):
+        if k not in self._bg:
+            frames = self.dataset.backgrounds(self.index[k])
+            if not frames:
+                raise ValueError(f"{self.dataset.path}: camera {self.cameras[k].name} has neither "
+                                 "foreground masks nor empty-scene frames for background subtraction")
+            self._bg[k] = BackgroundModel().fit(frames, rng=self.rng)
+        return self._bg[k]
+
+    def __call__(self, frame: int) -> tuple[list, list]:
+        """Undistorted colour images (C of (H, W, 3) uint8 BGR) and foreground masks ((H, W) bool)."""
+        images, masks = [], []
+        for k, (cam, i) in enumerate(zip(self.cameras, self.index)):
+            bgr = self.dataset.colour(frame, i)
+            fg = self.dataset.mask(frame, i) if self.mode == "dataset" else \
+                self._background_model(k).foreground(bgr)
+            images.append(cam.undistort_image(bgr, cv2.INTER_LINEAR) if np.any(cam.dist) else bgr)
+            masks.append(undistort_mask(cam, fg))
+        return images, masks
+
+
+class SilhouetteLikelihood:
+    """Silhouette XOR and colour-consistency counts of N poses in every colour camera.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context
+    body : gltrack.body.model.BodyModel
+    observation : MultiviewObservation
+    tile : int, engine tile side in pixels (power of two)
+    blocking : "layers" (occluder polygons and Bandouch's non-human foreground removal),
+        "polygons" (the occluder polygons only) or "none"
+    appearance : bool, score the colour channel once :meth:`init_appearance` has run
+
+    Attributes
+    ----------
+    engine : ScoringEngine
+    appearance : AppearanceModel or None
+    area : float, unblocked foreground pixels of the current frame at tile resolution, summed
+        over the cameras (at least 1): the scale of ``e_S``
+    """
+
+    def __init__(self, ctx, body, observation: MultiviewObservation, *, tile: int = 64,
+                 blocking: str = "layers", appearance: bool = True):
+        if blocking not in BLOCKING:
+            raise ValueError(f"blocking must be one of {', '.join(BLOCKING)}, got {blocking!r}")
+        self.body, self.obs = body, observation
+        self.engine = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, observation.pinholes,
+                                    tile=tile)
+        self.blocking = blocking
+        self.env = (EnvironmentLayers(ctx, observation.pinholes, programs=self.engine.programs)
+                    if blocking == "layers" else None)
+        self.use_appearance = bool(appearance)
+        self.appearance = None
+        self.area = 1.0
+        self.frame = None
+
+    @property
+    def channels(self) -> list[str]:
+        return ["silhouette", "appearance"] if self.use_appearance else ["silhouette"]
+
+    def init_appearance(self, params, images, masks, full: bool = True, rng=None) -> None:
+        """Build the colour model from the body posed at ``params`` (D,) over ``images`` and
+        ``masks`` (the observation of one frame): at full camera resolution (``full``) or at
+        the engine's tile resolution."""
+        if not self.use_appearance:
+            return
+        self.appearance = AppearanceModel.from_first_frame(
+            self.body.mesh, self.body.skinning(np.asarray(params)[None])[0], self.obs.pinholes,
+            images, masks, engine=None if full else self.engine, rng=rng)
+
+    def refine_appearance(self, params, images, masks) -> None:
+        """Add the colours seen at ``params`` (D,) in ``images`` / ``masks``."""
+        if self.appearance is not None:
+            self.appearance.refine(self.body.skinning(np.asarray(params)[None])[0],
+                                   self.obs.pinholes, images, masks, engine=self.engine)
+
+    def _human_lut(self):
+        if self.appearance is not None:
+            return self.appearance.human_lut()
+        return np.ones(hls.N_VOXELS, bool)
+
+    def observe(self, frame: int):
+        """Read frame ``frame`` and upload its masks (and colour bits) to the engine.
+
+        Returns
+        -------
+        images : list of (H, W, 3) uint8; fg : list of (H, W) bool, the foreground as scored;
+        block : list of (H, W) bool, pixels the costs ignore
+        """
+        images, masks = self.obs(frame)
+        fgs, blocks = [], []
+        lut = self._human_lut() if self.env is not None else None
+        for c, (img, fg) in enumerate(zip(images, masks)):
+            if self.env is not None:
+                fg, block = self.env.apply(c, fg, img, self.obs.polygons[c], lut)
+            elif self.blocking == "polygons":
+                block = self.obs.polygons[c]
+            else:
+                block = np.zeros_like(fg)
+            self.engine.set_masks(c, fg, block)
+            if self.appearance is not None:
+                self.engine.set_appearance(c, hls.observed_bits(img), self.appearance.tri_bits())
+            fgs.append(fg)
+            blocks.append(block)
+        T = self.engine.tile
+        self.area = max(1.0, float(sum(
+            np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
+                                        interpolation=cv2.INTER_NEAREST_EXACT))
+            for f, b in zip(fgs, blocks))))
+        self.frame = frame
+        return images, fgs, blocks
+
+    def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Silhouette error e_S (N,) and appearance count c_A (N,) or None, summed over cameras."""
+        r = self.engine.score(self.body.skinning(np.atleast_2d(X)), self.channels)
+        e_s = r[:, :, 1].sum(axis=1)
+        c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
+        return e_s, c_a
+
+    def release(self) -> None:
+        if self.env is not None:
+            self.env.release()
+            self.env = None
+        self.engine.release()
