@@ -9,7 +9,8 @@ import pytest
 from scipy.stats import chi2
 
 from gltrack.camera import look_at_camera
-from gltrack.observe.colour_carve import YuvBackground, carve_colour, chi2_threshold_poly
+from gltrack.observe.background import YuvBackground
+from gltrack.observe.colour_carve import carve_colour, chi2_threshold_poly
 from gltrack.observe.voxels import carve
 
 CENTRE = np.array([0.1, 1.0, -0.05])

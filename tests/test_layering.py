@@ -58,8 +58,9 @@ LAYERS: dict[str, set[str]] = {
     "evidence": {"body", "camera", "sample", "observe", "render", "npz", "spawn"},
     # Datasets and their simulators: the simulator poses the body (motion capture through
     # motion) and renders it with render's reference renderer in a spawned child (its own GL
-    # platform), so neither gl's moderngl context nor observe's likelihoods are needed.
-    "data": {"body", "camera", "render", "motion", "npz", "spawn"},
+    # platform), so gl's moderngl context is not needed; its masks come from observe's
+    # background subtraction (observe.background: numpy and OpenCV, no GL).
+    "data": {"body", "camera", "render", "observe", "motion", "npz", "spawn"},
     # Metrics over results and datasets; overlays drawn with render (gl for a GL context),
     # tracked motion as written by export.
     "eval": {"data", "body", "camera", "render", "gl", "motion", "npz", "export", "spawn"},

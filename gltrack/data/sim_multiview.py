@@ -5,21 +5,24 @@ and offset ``N(0, offset_sigma)`` grey levels per channel (auto-exposure and whi
 flicker), then independent per-pixel Gaussian noise of ``pixel_sigma`` grey levels, rounding to
 8 bits. Every term is multiplied by the noise level (:data:`gltrack.data.sim_depth.NOISE_LEVELS`).
 
-Masks come from a real background-subtraction algorithm, :class:`BackgroundModel`: OpenCV's
-Gaussian-mixture subtractor (MOG2, Zivkovic 2004) trained on empty-scene frames that carry the
-same sensor noise, applied with a frozen model (learning rate 0, so a subject standing still is
-not absorbed into the background), shadow pixels counted as background, then a morphological
-opening (speckle) and closing (holes). The masks therefore have the errors trackers meet on real
+Masks come from a real background-subtraction algorithm (:func:`mask_model`, a
+:class:`gltrack.observe.background.BackgroundModel`): OpenCV's Gaussian-mixture subtractor
+(MOG2, Zivkovic 2004) trained on empty-scene frames that carry the same sensor noise, applied
+with a frozen model (learning rate 0, so a subject standing still is not absorbed into the
+background), shadow pixels counted as background, then a morphological opening (speckle) and
+closing (holes). The masks therefore have the errors trackers meet on real
 data: holes where clothing matches the background, shadows at the feet, and any moving object
 that is not the subject.
 """
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
+
+from gltrack.observe.background import BackgroundModel
 
 from .sim_depth import NoisePreset
 
@@ -66,53 +69,33 @@ def sensor_image(rgb, rng: np.random.Generator, model: ColourNoise | None = None
     return np.clip(np.round(out), 0, 255).astype(np.uint8)[..., ::-1].copy()
 
 
-class BackgroundModel:
-    """MOG2 background subtraction trained once on empty-scene frames, then frozen.
+def mask_model(backgrounds) -> BackgroundModel:
+    """The simulator's background subtraction, fitted on a camera's empty-scene frames.
+
+    MOG2 (:class:`gltrack.observe.background.BackgroundModel`, method ``"mog2"``) on all the
+    frames, with a squared Mahalanobis distance of 12 for "matches the background" and a shadow
+    threshold tau of 0.75: OpenCV's default 0.5 also swallows dark clothing in front of a light
+    floor; 0.75 keeps the soft shadows of the simulated lighting out and the legs in. The
+    opening and closing kernels are 3 and 5 pixels at 240 image rows, scaled with the image
+    height (limbs get thinner); no small components are removed.
 
     Parameters
     ----------
     backgrounds : sequence of (H, W, 3) uint8 BGR empty-scene frames (at least 1)
-    var_threshold : float, squared Mahalanobis distance for "matches the background"
-    shadow_threshold : float
-        MOG2's tau: a pixel darker than the background by a factor within ``[tau, 1]`` and of
-        the same chromaticity is a shadow. OpenCV's default 0.5 also swallows dark clothing in
-        front of a light floor; 0.75 keeps the soft shadows of the simulated lighting out and
-        the legs in.
-    open_px, close_px : int, sizes of the elliptic opening/closing kernels, pixels; default
-        3 and 5 at 240 image rows, scaled with the image height (limbs get thinner)
+
+    Returns
+    -------
+    BackgroundModel, fitted; ``.foreground(frame)`` gives (H, W) bool masks
     """
-
-    def __init__(self, backgrounds, var_threshold: float = 12.0, shadow_threshold: float = 0.75,
-                 open_px: int | None = None, close_px: int | None = None):
-        frames = [np.asarray(b) for b in backgrounds]
-        if not frames:
-            raise ValueError("BackgroundModel needs at least one background frame")
-        self.shape = frames[0].shape
-        self._mog = cv2.createBackgroundSubtractorMOG2(history=max(len(frames), 2),
-                                                       varThreshold=var_threshold,
-                                                       detectShadows=True)
-        self._mog.setShadowThreshold(float(shadow_threshold))
-        for f in frames:
-            if f.shape != self.shape or f.dtype != np.uint8:
-                raise ValueError(f"background frames must all be {self.shape} uint8, got "
-                                 f"{f.shape} {f.dtype}")
-            self._mog.apply(f, learningRate=-1)
-        scale = self.shape[0] / 240.0
-        open_px = open_px or max(1, 2 * int(round(1.5 * scale - 0.5)) + 1)   # 3 at 240 rows
-        close_px = close_px or max(1, 2 * int(round(2.5 * scale - 0.5)) + 1)  # 5 at 240 rows
-        self._open = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (open_px, open_px))
-        self._close = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px, close_px))
-
-    def foreground(self, frame) -> np.ndarray:
-        """(H, W) bool foreground mask of a (H, W, 3) uint8 BGR frame."""
-        frame = np.asarray(frame)
-        if frame.shape != self.shape:
-            raise ValueError(f"frame is {frame.shape}, the background model {self.shape}")
-        raw = self._mog.apply(frame, learningRate=0)
-        fg = np.where(raw == 255, 255, 0).astype(np.uint8)  # 127 = shadow: background
-        fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, self._open)
-        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, self._close)
-        return fg > 0
+    frames = list(backgrounds)
+    if not frames:
+        raise ValueError("the simulator's background model needs at least one background frame")
+    scale = np.asarray(frames[0]).shape[0] / 240.0
+    open_px = max(1, 2 * int(round(1.5 * scale - 0.5)) + 1)   # 3 at 240 rows
+    close_px = max(1, 2 * int(round(2.5 * scale - 0.5)) + 1)  # 5 at 240 rows
+    model = BackgroundModel(threshold=math.sqrt(12.0), mog2_shadow_tau=0.75, morph_size=open_px,
+                            close_size=close_px, min_area=0, max_train_frames=len(frames))
+    return model.fit(frames, "mog2")
 
 
 def iou(a, b) -> float:

@@ -59,7 +59,7 @@ from gltrack.camera import Camera, depth_camera_sr4000, look_at_camera
 from gltrack.data import scene as scn
 from gltrack.data.dataset import RIGS, DatasetWriter
 from gltrack.data.sim_depth import NOISE_LEVELS, TofNoise, apply_tof_noise
-from gltrack.data.sim_multiview import BackgroundModel, ColourNoise, sensor_image
+from gltrack.data.sim_multiview import ColourNoise, mask_model, sensor_image
 
 log = logging.getLogger(__name__)
 
@@ -625,7 +625,7 @@ def _multiview_frames(writer, renderer, cameras, mesh, kin, P, layout, noise, se
         bgs = [sensor_image(clean, brng, model) for _ in range(N_BACKGROUND["multiview"])]
         for k, b in enumerate(bgs):
             writer.write_background(c, b, index=k)
-        subtractors.append(BackgroundModel(bgs))
+        subtractors.append(mask_model(bgs))
         rngs.append(_rng(seed, "sensor", c))
     with _bar(tqdm, len(P), progress, "synth multiview") as bar:
         for f in range(len(P)):

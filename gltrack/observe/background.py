@@ -1,13 +1,22 @@
-"""Foreground masks I_F from colour frames by background subtraction.
+"""Background models: foreground masks from colour frames of a static camera.
 
-Two models, both trained on frames of the empty scene:
+Every model is trained on frames of the empty scene and then frozen (a subject standing still is
+never absorbed into the background).
 
-* ``"mog2"``: OpenCV's adaptive Gaussian mixture (``cv2.createBackgroundSubtractorMOG2``) with its
-  own shadow detection; while tracking it is applied with learning rate 0, so a subject standing
-  still is never absorbed into the background.
+:class:`BackgroundModel` gives a cleaned-up boolean mask per frame, with one of two methods:
+
+* ``"mog2"``: OpenCV's adaptive Gaussian mixture (``cv2.createBackgroundSubtractorMOG2``,
+  Zivkovic 2004) with its own shadow detection (a pixel darker than the background by a factor
+  within ``[mog2_shadow_tau, 1]`` and of the same chromaticity is a shadow), applied with
+  learning rate 0. The multi-view tracker uses it on datasets without masks, the sensor
+  simulator (:func:`gltrack.data.sim_multiview.mask_model`) to make a dataset's masks.
 * ``"gaussian_yuv"``: one Gaussian per pixel and YUV channel (mean and variance over the
   training frames). A pixel is foreground when its normalised squared distance to the mean,
   ``sum_c (x_c - mu_c)^2 / (var_c + noise_var)``, exceeds ``threshold^2``, unless it is a shadow.
+
+:class:`YuvBackground` (Caillette et al. 2008) gives the per-pixel squared Mahalanobis distance
+instead of a mask, for the chi-square tests of colour voxel carving
+(:mod:`gltrack.observe.colour_carve`).
 
 Shadow test (``gaussian_yuv``)
 ------------------------------
@@ -18,13 +27,38 @@ A cast shadow dims the light on a surface: every RGB channel scales by roughly t
 ``shadow_low <= Y / mu_Y <= shadow_high`` and ``|(U - 128) - r (mu_U - 128)|`` and the same for V
 stay within ``shadow_chroma`` levels (plus 3 background standard deviations).
 
-Clean-up: a morphological opening (removes isolated noise pixels) then a closing (fills pin
-holes), both with an elliptic kernel of ``morph_size`` pixels, then connected components smaller
-than ``min_area`` pixels are dropped.
+Clean-up (:func:`clean_mask`)
+-----------------------------
+A morphological opening (removes isolated noise pixels) with an elliptic kernel of
+``morph_size`` pixels, then a closing (fills pin holes) with one of ``close_size`` pixels
+(default ``morph_size``), then connected components smaller than ``min_area`` pixels are dropped.
+
+YUV Gaussian with a shadow twin (:class:`YuvBackground`)
+--------------------------------------------------------
+Every pixel has a full Gaussian in YUV (mean and 3x3 covariance over the empty-scene frames, plus
+``noise_var`` on the diagonal so a static training set or 8-bit quantisation does not give a
+singular covariance). The covariance is full, not diagonal, because YUV channels of a real sensor
+are correlated (Bayer demosaicing and the RGB->YUV mix put the same photon noise into all three);
+with a diagonal model the d_M of plain noise is no longer chi-square with 3 dof, so the alpha of
+colour carving's thresholds would no longer mean what it says.
+A second "shadow" Gaussian has the mean's luminance lowered by ``shadow_drop`` (10 %) and the
+same covariance. By default its chroma offsets ``U - 128`` and ``V - 128`` shrink by the same
+factor: that is the same surface under 10 % less light (YUV is linear in RGB), identical to the
+paper's Y-only shift for a grey surface, while on a saturated one (chroma offset 60 levels) a
+Y-only shift leaves a 6-level chroma error, several noise standard deviations, and calls the
+shadow foreground. ``shadow_chroma=False`` gives the literal Y-only shift.
+Per pixel the model with the smaller distance is used. The paper selects "by a simple test on
+the luminance channel"; the smaller distance is that test made exact: the difference of the two
+squared distances is affine in the pixel, so the choice is one linear test, which for a diagonal
+covariance and a Y-only shift is exactly "Y nearer the shadow mean". A plain
+``Y < (1 - shadow_drop / 2) mu_Y`` test would, with the chroma shift or correlated noise, send
+ordinary noise dips of 5 % in Y to the wrong Gaussian.
+``d_M`` is the squared Mahalanobis distance, chi-square with 3 dof for a background pixel.
 """
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -34,14 +68,27 @@ log = logging.getLogger(__name__)
 METHODS = ("mog2", "gaussian_yuv")
 
 
-def _check_frame(frame, where, shape=None) -> np.ndarray:
-    img = np.asarray(frame)
-    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
-        raise ValueError(f"{where}: expected a BGR image (H, W, 3) uint8, got {img.shape} {img.dtype}")
-    if shape is not None and img.shape[:2] != shape:
-        raise ValueError(f"{where}: image is {img.shape[1]}x{img.shape[0]}, the background model "
-                         f"is {shape[1]}x{shape[0]}")
-    return np.ascontiguousarray(img)
+def check_bgr(img, where: str, shape=None) -> np.ndarray:
+    """``img`` as a C-contiguous (H, W, 3) uint8 BGR array, or a ValueError naming ``where``.
+
+    Parameters
+    ----------
+    img : array_like, the image to check
+    where : str, what the image is, for messages
+    shape : (H, W), optional, the size the image must have, pixels
+    """
+    a = np.asarray(img)
+    if a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8:
+        raise ValueError(f"{where}: expected a BGR image (H, W, 3) uint8, got {a.shape} {a.dtype}")
+    if shape is not None and a.shape[:2] != tuple(shape):
+        raise ValueError(f"{where}: image is {a.shape[1]}x{a.shape[0]}, expected "
+                         f"{shape[1]}x{shape[0]}")
+    return np.ascontiguousarray(a)
+
+
+def bgr_to_yuv(img) -> np.ndarray:
+    """(H, W, 3) float32 YUV (OpenCV ``COLOR_BGR2YUV``, 0..255) of a uint8 BGR image."""
+    return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2YUV).astype(np.float32)
 
 
 class BackgroundModel:
@@ -62,9 +109,15 @@ class BackgroundModel:
     shadow_chroma : float, grey levels
         Allowed chromaticity change of a shadow (``gaussian_yuv``).
     morph_size : int, pixels
-        Kernel size of the opening and closing (0 or 1: no morphology).
+        Kernel size of the opening, and of the closing unless ``close_size`` is given (0 or 1:
+        no morphology).
+    close_size : int, pixels, optional
+        Kernel size of the closing (default ``morph_size``).
     min_area : int, pixels
-        Connected foreground components smaller than this are removed.
+        Connected foreground components smaller than this are removed (0 or 1: none).
+    mog2_shadow_tau : float
+        ``mog2``: MOG2's shadow threshold: a pixel darker than the background by a factor
+        within ``[tau, 1]`` and of the same chromaticity is a shadow (OpenCV's default 0.5).
     max_train_frames : int
         Training uses at most this many frames (a random subset when an rng is given to
         :meth:`fit`, evenly spaced otherwise).
@@ -72,18 +125,23 @@ class BackgroundModel:
 
     def __init__(self, *, threshold: float = 4.0, noise_var: float = 9.0, shadows: bool = True,
                  shadow_low: float = 0.4, shadow_high: float = 0.95, shadow_chroma: float = 8.0,
-                 morph_size: int = 3, min_area: int = 20, max_train_frames: int = 100):
+                 morph_size: int = 3, close_size: int | None = None, min_area: int = 20,
+                 mog2_shadow_tau: float = 0.5, max_train_frames: int = 100):
         if not threshold > 0 or not noise_var >= 0:
             raise ValueError("threshold must be positive and noise_var non-negative")
         if not 0 < shadow_low < shadow_high <= 1:
             raise ValueError(f"need 0 < shadow_low < shadow_high <= 1, got {shadow_low}, {shadow_high}")
+        if not 0 < mog2_shadow_tau <= 1:
+            raise ValueError(f"mog2_shadow_tau must be in (0, 1], got {mog2_shadow_tau}")
         self.threshold = float(threshold)
         self.noise_var = float(noise_var)
         self.shadows = bool(shadows)
         self.shadow_low, self.shadow_high = float(shadow_low), float(shadow_high)
         self.shadow_chroma = float(shadow_chroma)
         self.morph_size = int(morph_size)
+        self.close_size = self.morph_size if close_size is None else int(close_size)
         self.min_area = int(min_area)
+        self.mog2_shadow_tau = float(mog2_shadow_tau)
         self.max_train_frames = int(max_train_frames)
         self.method = None
         self.shape = None
@@ -111,8 +169,8 @@ class BackgroundModel:
         frames = list(frames)
         if not frames:
             raise ValueError("at least one background frame is needed")
-        shape = _check_frame(frames[0], "background frame 0").shape[:2]
-        imgs = [_check_frame(f, f"background frame {i}", shape) for i, f in enumerate(frames)]
+        shape = check_bgr(frames[0], "background frame 0").shape[:2]
+        imgs = [check_bgr(f, f"background frame {i}", shape) for i, f in enumerate(frames)]
         if len(imgs) > self.max_train_frames:
             if rng is None:
                 pick = np.linspace(0, len(imgs) - 1, self.max_train_frames).round().astype(int)
@@ -123,10 +181,11 @@ class BackgroundModel:
         if method == "mog2":
             self._mog = cv2.createBackgroundSubtractorMOG2(
                 history=max(len(imgs), 2), varThreshold=self.threshold ** 2, detectShadows=self.shadows)
+            self._mog.setShadowThreshold(self.mog2_shadow_tau)
             for img in imgs:
                 self._mog.apply(img, learningRate=-1)
         else:
-            yuv = np.stack([cv2.cvtColor(i, cv2.COLOR_BGR2YUV) for i in imgs]).astype(np.float32)
+            yuv = np.stack([bgr_to_yuv(i) for i in imgs])
             self._mean = yuv.mean(axis=0)
             self._var = yuv.var(axis=0)
         log.debug("background model %s fitted on %d frames of %dx%d", method, len(imgs),
@@ -138,12 +197,12 @@ class BackgroundModel:
         """(H, W) bool foreground before the morphological clean-up."""
         if self.method is None:
             raise RuntimeError("BackgroundModel.fit must be called first")
-        img = _check_frame(frame, "frame", self.shape)
+        img = check_bgr(frame, "frame", self.shape)
         if self.method == "mog2":
             out = self._mog.apply(img, learningRate=0)
             # 127 marks MOG2's shadows, 255 foreground
             return out == 255 if self.shadows else out > 0
-        yuv = cv2.cvtColor(img, cv2.COLOR_BGR2YUV).astype(np.float32)
+        yuv = bgr_to_yuv(img)
         var = self._var + self.noise_var
         diff = yuv - self._mean
         fg = (diff * diff / var).sum(axis=2) > self.threshold ** 2
@@ -171,30 +230,144 @@ class BackgroundModel:
         -------
         (H, W) bool, True = foreground
         """
-        return clean_mask(self.raw_foreground(frame), self.morph_size, self.min_area)
+        return clean_mask(self.raw_foreground(frame), self.morph_size, self.min_area,
+                          self.close_size)
 
 
-def clean_mask(mask, morph_size: int = 3, min_area: int = 20) -> np.ndarray:
+def clean_mask(mask, morph_size: int = 3, min_area: int = 20,
+               close_size: int | None = None) -> np.ndarray:
     """Opening, closing and small-component removal of a binary mask.
 
     Parameters
     ----------
     mask : (H, W) bool
-    morph_size : int, pixels, elliptic kernel size (<= 1: skip the morphology)
+    morph_size : int, pixels, elliptic kernel size of the opening, and of the closing unless
+        ``close_size`` is given (<= 1: skip that operation)
     min_area : int, pixels, smallest component kept (<= 1: keep all)
+    close_size : int, pixels, optional, elliptic kernel size of the closing
 
     Returns
     -------
     (H, W) bool
     """
     m = np.asarray(mask).astype(np.uint8)
-    if morph_size > 1:
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (morph_size, morph_size))
-        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, k)
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+    close_size = morph_size if close_size is None else close_size
+    for op, size in ((cv2.MORPH_OPEN, morph_size), (cv2.MORPH_CLOSE, close_size)):
+        if size > 1:
+            k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+            m = cv2.morphologyEx(m, op, k)
     if min_area > 1 and m.any():
         n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
         keep = stats[:, cv2.CC_STAT_AREA] >= min_area
         keep[0] = False
         m = keep[labels].astype(np.uint8)
     return m.astype(bool)
+
+
+@dataclass
+class YuvBackground:
+    """Per-pixel Gaussian background model in YUV with a shadow twin (see the module docstring).
+
+    Attributes
+    ----------
+    mean : (H, W, 3) float32, YUV (OpenCV ``COLOR_BGR2YUV``, 0..255)
+    inv_cov : (H, W, 3, 3) float32, inverse covariance, (grey levels)^-2
+    shadow_drop : float, relative luminance drop of the shadow Gaussian (0 disables it)
+    shadow_chroma : bool, the shadow mean's chroma offsets shrink with its luminance
+    """
+
+    mean: np.ndarray
+    inv_cov: np.ndarray
+    shadow_drop: float = 0.1
+    shadow_chroma: bool = True
+
+    def __post_init__(self):
+        m, p = np.asarray(self.mean), np.asarray(self.inv_cov)
+        if m.ndim != 3 or m.shape[2] != 3:
+            raise ValueError(f"YuvBackground.mean must be (H, W, 3), got {m.shape}")
+        if p.shape != m.shape + (3,):
+            raise ValueError(f"YuvBackground.inv_cov must be {m.shape + (3,)}, got {p.shape}")
+        if not 0.0 <= float(self.shadow_drop) < 1.0:
+            raise ValueError(f"YuvBackground.shadow_drop must be in [0, 1), got {self.shadow_drop}")
+        self.mean = m.astype(np.float32)
+        self.inv_cov = p.astype(np.float32)
+        self.shadow_drop = float(self.shadow_drop)
+        self.shadow_chroma = bool(self.shadow_chroma)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) image size in pixels."""
+        return self.mean.shape[:2]
+
+    @property
+    def shadow_mean(self) -> np.ndarray:
+        """(H, W, 3) float32, YUV mean of the shadow Gaussian."""
+        s = self.mean.copy()
+        r = np.float32(1.0 - self.shadow_drop)
+        s[..., 0] *= r
+        if self.shadow_chroma:
+            s[..., 1:] = 128.0 + r * (s[..., 1:] - 128.0)
+        return s
+
+    @classmethod
+    def fit(cls, frames, *, noise_var: float = 4.0, shadow_drop: float = 0.1,
+            shadow_chroma: bool = True) -> "YuvBackground":
+        """Learn the model from frames of the empty scene.
+
+        Parameters
+        ----------
+        frames : sequence of (H, W, 3) uint8 BGR images, all the same size (e.g.
+            ``Dataset.backgrounds(cam)``); the covariance needs at least 2, one frame gives
+            ``noise_var * I``
+        noise_var : float, (grey levels)^2, added to the covariance diagonal
+        shadow_drop : float, relative luminance drop of the shadow Gaussian (0 disables it)
+        shadow_chroma : bool, shrink the shadow mean's chroma offsets too (see the module docstring)
+
+        Returns
+        -------
+        YuvBackground
+        """
+        frames = list(frames)
+        if not frames:
+            raise ValueError("YuvBackground.fit: at least one background frame is needed")
+        if not noise_var > 0:
+            raise ValueError(f"YuvBackground.fit: noise_var must be positive, got {noise_var}")
+        shape = check_bgr(frames[0], "background frame 0").shape[:2]
+        mean = np.zeros(shape + (3,), np.float64)
+        second = np.zeros(shape + (3, 3), np.float64)
+        # streamed sums keep memory at one frame however many frames a dataset has
+        for i, f in enumerate(frames):
+            y = bgr_to_yuv(check_bgr(f, f"background frame {i}", shape)).astype(np.float64)
+            mean += y
+            second += y[..., :, None] * y[..., None, :]
+        n = len(frames)
+        mean /= n
+        cov = (second - n * mean[..., :, None] * mean[..., None, :]) / max(n - 1, 1)
+        if n == 1:
+            cov[:] = 0.0
+        cov += float(noise_var) * np.eye(3)
+        log.debug("YUV background fitted on %d frames of %dx%d", n, shape[1], shape[0])
+        return cls(mean.astype(np.float32), np.linalg.inv(cov).astype(np.float32),
+                   float(shadow_drop), bool(shadow_chroma))
+
+    def distance(self, image) -> np.ndarray:
+        """Squared Mahalanobis distance of every pixel to its selected Gaussian.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint8 BGR, the model's size
+
+        Returns
+        -------
+        (H, W) float32, (grey levels / sigma)^2: chi-square with 3 dof where the pixel is
+        background (slightly smaller with the shadow model, as the minimum of two distances)
+        """
+        yuv = bgr_to_yuv(check_bgr(image, "image", self.shape))
+        dm = self._mahalanobis(yuv, self.mean)
+        if self.shadow_drop > 0:
+            np.minimum(dm, self._mahalanobis(yuv, self.shadow_mean), out=dm)
+        return dm
+
+    def _mahalanobis(self, yuv, mu):
+        d = yuv - mu
+        return np.einsum("hwi,hwij,hwj->hw", d, self.inv_cov, d, optimize=False)

@@ -3,26 +3,9 @@
 :func:`gltrack.observe.voxels.carve` classifies voxels from ready-made foreground masks. The paper
 merges segmentation into the reconstruction instead, and this module does that:
 
-Background model (:class:`YuvBackground`)
-    Every pixel has a full Gaussian in YUV (mean and 3x3 covariance over the empty-scene frames,
-    plus ``noise_var`` on the diagonal so a static training set or 8-bit quantisation does not
-    give a singular covariance). The covariance is full, not diagonal, because YUV channels of a
-    real sensor are correlated (Bayer demosaicing and the RGB->YUV mix put the same photon noise
-    into all three); with a diagonal model the d_M of plain noise is no longer chi-square with 3
-    dof, so the alpha of the thresholds below would no longer mean what it says.
-    A second "shadow" Gaussian has the mean's luminance lowered by ``shadow_drop`` (10 %) and the
-    same covariance. By default its chroma offsets ``U - 128`` and ``V - 128`` shrink by the same
-    factor: that is the same surface under 10 % less light (YUV is linear in RGB), identical to
-    the paper's Y-only shift for a grey surface, while on a saturated one (chroma offset 60
-    levels) a Y-only shift leaves a 6-level chroma error, several noise standard deviations, and
-    calls the shadow foreground. ``shadow_chroma=False`` gives the literal Y-only shift.
-    Per pixel the model with the smaller distance is used. The paper selects "by a simple test
-    on the luminance channel"; the smaller distance is that test made exact: the difference of
-    the two squared distances is affine in the pixel, so the choice is one linear test, which for
-    a diagonal covariance and a Y-only shift is exactly "Y nearer the shadow mean". A plain
-    ``Y < (1 - shadow_drop / 2) mu_Y`` test would, with the chroma shift or correlated noise,
-    send ordinary noise dips of 5 % in Y to the wrong Gaussian.
-    ``d_M`` is the squared Mahalanobis distance, chi-square with 3 dof for a background pixel.
+Background model (:class:`gltrack.observe.background.YuvBackground`)
+    A full-covariance Gaussian per pixel in YUV with a shadow twin; its squared Mahalanobis
+    distance ``d_M`` is chi-square with 3 dof for a background pixel.
 
 Per voxel and camera (eq. 6)
     The voxel's 8 corners are projected; the pixel bounding box of their hull, clipped to the
@@ -63,13 +46,12 @@ import functools
 import logging
 import math
 import time
-from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from scipy.optimize import linprog
 from scipy.stats import chi2
 
+from gltrack.observe.background import YuvBackground, check_bgr
 from gltrack.observe.voxels import (_CORNERS, BACKGROUND, EDGE, FOREGROUND, Voxels, _decide,
                                     _grid, centre_pixels, pixel_boxes)
 
@@ -77,129 +59,6 @@ log = logging.getLogger(__name__)
 
 #: 1 / g and 1 / g^2 with g the plastic number: the R2 low-discrepancy sequence (M. Roberts 2018).
 _R2 = (0.7548776662466927, 0.5698402909980532)
-
-
-def _check_bgr(img, where, shape=None) -> np.ndarray:
-    a = np.asarray(img)
-    if a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8:
-        raise ValueError(f"{where}: expected a BGR image (H, W, 3) uint8, got {a.shape} {a.dtype}")
-    if shape is not None and a.shape[:2] != tuple(shape):
-        raise ValueError(f"{where}: image is {a.shape[1]}x{a.shape[0]}, expected "
-                         f"{shape[1]}x{shape[0]}")
-    return a
-
-
-def _yuv(img) -> np.ndarray:
-    return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2YUV).astype(np.float32)
-
-
-@dataclass
-class YuvBackground:
-    """Per-pixel Gaussian background model in YUV with a shadow twin (see module docstring).
-
-    Attributes
-    ----------
-    mean : (H, W, 3) float32, YUV (OpenCV ``COLOR_BGR2YUV``, 0..255)
-    inv_cov : (H, W, 3, 3) float32, inverse covariance, (grey levels)^-2
-    shadow_drop : float, relative luminance drop of the shadow Gaussian (0 disables it)
-    shadow_chroma : bool, the shadow mean's chroma offsets shrink with its luminance
-    """
-
-    mean: np.ndarray
-    inv_cov: np.ndarray
-    shadow_drop: float = 0.1
-    shadow_chroma: bool = True
-
-    def __post_init__(self):
-        m, p = np.asarray(self.mean), np.asarray(self.inv_cov)
-        if m.ndim != 3 or m.shape[2] != 3:
-            raise ValueError(f"YuvBackground.mean must be (H, W, 3), got {m.shape}")
-        if p.shape != m.shape + (3,):
-            raise ValueError(f"YuvBackground.inv_cov must be {m.shape + (3,)}, got {p.shape}")
-        if not 0.0 <= float(self.shadow_drop) < 1.0:
-            raise ValueError(f"YuvBackground.shadow_drop must be in [0, 1), got {self.shadow_drop}")
-        self.mean = m.astype(np.float32)
-        self.inv_cov = p.astype(np.float32)
-        self.shadow_drop = float(self.shadow_drop)
-        self.shadow_chroma = bool(self.shadow_chroma)
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) image size in pixels."""
-        return self.mean.shape[:2]
-
-    @property
-    def shadow_mean(self) -> np.ndarray:
-        """(H, W, 3) float32, YUV mean of the shadow Gaussian."""
-        s = self.mean.copy()
-        r = np.float32(1.0 - self.shadow_drop)
-        s[..., 0] *= r
-        if self.shadow_chroma:
-            s[..., 1:] = 128.0 + r * (s[..., 1:] - 128.0)
-        return s
-
-    @classmethod
-    def fit(cls, frames, *, noise_var: float = 4.0, shadow_drop: float = 0.1,
-            shadow_chroma: bool = True) -> "YuvBackground":
-        """Learn the model from frames of the empty scene.
-
-        Parameters
-        ----------
-        frames : sequence of (H, W, 3) uint8 BGR images, all the same size (e.g.
-            ``Dataset.backgrounds(cam)``); the covariance needs at least 2, one frame gives
-            ``noise_var * I``
-        noise_var : float, (grey levels)^2, added to the covariance diagonal
-        shadow_drop : float, relative luminance drop of the shadow Gaussian (0 disables it)
-        shadow_chroma : bool, shrink the shadow mean's chroma offsets too (see module docstring)
-
-        Returns
-        -------
-        YuvBackground
-        """
-        frames = list(frames)
-        if not frames:
-            raise ValueError("YuvBackground.fit: at least one background frame is needed")
-        if not noise_var > 0:
-            raise ValueError(f"YuvBackground.fit: noise_var must be positive, got {noise_var}")
-        shape = _check_bgr(frames[0], "background frame 0").shape[:2]
-        mean = np.zeros(shape + (3,), np.float64)
-        second = np.zeros(shape + (3, 3), np.float64)
-        # streamed sums keep memory at one frame however many frames a dataset has
-        for i, f in enumerate(frames):
-            y = _yuv(_check_bgr(f, f"background frame {i}", shape)).astype(np.float64)
-            mean += y
-            second += y[..., :, None] * y[..., None, :]
-        n = len(frames)
-        mean /= n
-        cov = (second - n * mean[..., :, None] * mean[..., None, :]) / max(n - 1, 1)
-        if n == 1:
-            cov[:] = 0.0
-        cov += float(noise_var) * np.eye(3)
-        log.debug("YUV background fitted on %d frames of %dx%d", n, shape[1], shape[0])
-        return cls(mean.astype(np.float32), np.linalg.inv(cov).astype(np.float32),
-                   float(shadow_drop), bool(shadow_chroma))
-
-    def distance(self, image) -> np.ndarray:
-        """Squared Mahalanobis distance of every pixel to its selected Gaussian.
-
-        Parameters
-        ----------
-        image : (H, W, 3) uint8 BGR, the model's size
-
-        Returns
-        -------
-        (H, W) float32, (grey levels / sigma)^2: chi-square with 3 dof where the pixel is
-        background (slightly smaller with the shadow model, as the minimum of two distances)
-        """
-        yuv = _yuv(_check_bgr(image, "image", self.shape))
-        dm = self._mahalanobis(yuv, self.mean)
-        if self.shadow_drop > 0:
-            np.minimum(dm, self._mahalanobis(yuv, self.shadow_mean), out=dm)
-        return dm
-
-    def _mahalanobis(self, yuv, mu):
-        d = yuv - mu
-        return np.einsum("hwi,hwij,hwj->hw", d, self.inv_cov, d, optimize=False)
 
 
 @functools.lru_cache(maxsize=32)
@@ -249,7 +108,7 @@ class _ColourView:
 
     def __init__(self, camera, image, background, t1, poly, distort):
         where = f"image for camera {camera.name}"
-        self.img = _check_bgr(image, where, (camera.height, camera.width))
+        self.img = check_bgr(image, where, (camera.height, camera.width))
         if not isinstance(background, YuvBackground):
             raise ValueError(f"background for camera {camera.name} must be a YuvBackground, got "
                              f"{type(background).__name__}")
