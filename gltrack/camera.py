@@ -229,6 +229,20 @@ class Camera:
         X = np.asarray(X, dtype=np.float64)
         return X @ self.R.T + self.t
 
+    def to_world(self, Xc) -> np.ndarray:
+        """Camera coordinates to world points, the inverse of :meth:`to_camera`.
+
+        Parameters
+        ----------
+        Xc : (N, 3) array_like, metres, OpenCV camera frame (any leading shape ``(..., 3)``)
+
+        Returns
+        -------
+        (N, 3) float64, metres, world: ``R^T (Xc - t)``.
+        """
+        Xc = np.asarray(Xc, dtype=np.float64)
+        return (Xc - self.t) @ self.R
+
     def depth_of(self, X) -> np.ndarray:
         """(N,) float64, metres: ``z`` of the world points ``X (N, 3)`` in the camera frame."""
         X = np.asarray(X, dtype=np.float64)
@@ -256,6 +270,41 @@ class Camera:
         if distort and np.any(self.dist):
             xy = _distort_normalised(xy, self.dist)
         return xy * self.K[[0, 1], [0, 1]] + self.K[:2, 2]
+
+    def backproject(self, uv, depth, *, distort: bool = True, frame: str = "world") -> np.ndarray:
+        """Pixels with known depth back to 3-D points, the inverse of :meth:`project`.
+
+        The pixel's ray through the pinhole, ``((u - cx) / fx, (v - cy) / fy, 1)`` in the OpenCV
+        camera frame (x right, y down, z forward; integer ``(u, v)`` are pixel centres), is
+        scaled to the given depth.
+
+        Parameters
+        ----------
+        uv : (N, 2) array_like, pixels ``(u, v)`` (any leading shape ``(..., 2)``)
+        depth : (N,) array_like, metres along the optical axis (the camera-frame ``z``, as a
+            depth image stores it; not the distance along the ray)
+        distort : bool
+            ``uv`` are pixels of the real (distorted) image, whose lens distortion is undone
+            first (as :meth:`project` with ``distort=True`` made them); ``False``: pixels of the
+            undistorted pinhole image that gltrack renders. No effect for a camera without
+            distortion.
+        frame : {"world", "camera"}
+            Return world points, or points in the OpenCV camera frame.
+
+        Returns
+        -------
+        (N, 3) float64, metres.
+        """
+        if frame not in ("world", "camera"):
+            raise ValueError(f"frame must be 'world' or 'camera', got {frame!r}")
+        uv = np.asarray(uv, dtype=np.float64)
+        if distort and np.any(self.dist):
+            uv = self.undistort_points(uv)
+        z = np.asarray(depth, dtype=np.float64)
+        x = (uv[..., 0] - self.cx) / self.fx * z
+        y = (uv[..., 1] - self.cy) / self.fy * z
+        Xc = np.stack([x, y, z], axis=-1)
+        return self.to_world(Xc) if frame == "world" else Xc
 
     def undistort_points(self, uv) -> np.ndarray:
         """Distorted pixel coordinates to undistorted ones (same ``K``), inverse of the lens model.

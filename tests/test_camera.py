@@ -133,6 +133,29 @@ def test_geometry_is_consistent():
     assert np.all(cam.depth_of(X) > 0.9)
 
 
+def test_backproject_inverts_project():
+    rng = np.random.default_rng(5)
+    for distort in (False, True):
+        cam = _random_camera(rng, distort=distort)
+        X = _points_in_front(cam, rng)
+        uv, z = cam.project(X), cam.depth_of(X)
+        np.testing.assert_allclose(cam.backproject(uv, z), X, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(cam.backproject(uv, z, frame="camera"), cam.to_camera(X),
+                                   rtol=0, atol=1e-6)
+        np.testing.assert_allclose(cam.backproject(cam.project(X, distort=False), z,
+                                                   distort=False), X, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(cam.to_world(cam.to_camera(X)), X, rtol=0, atol=1e-12)
+        # the output follows the input: twice the depth is twice as far along the same ray,
+        # another pixel is another point
+        np.testing.assert_allclose(cam.backproject(uv, 2 * z), cam.center + 2 * (X - cam.center),
+                                   rtol=0, atol=1e-6)
+        moved = cam.backproject(uv + [5.0, 0.0], z)
+        assert np.all(np.linalg.norm(moved - X, axis=1) > 1e-3)
+    assert cam.backproject(np.zeros((2, 4, 2)), np.ones((2, 4))).shape == (2, 4, 3)
+    with pytest.raises(ValueError, match="frame"):
+        cam.backproject(uv, z, frame="image")
+
+
 def test_arrays_are_copied_and_read_only():
     K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
     cam = Camera("c", "depth", 640, 480, K, np.zeros(5), np.eye(3), np.zeros(3))

@@ -98,28 +98,6 @@ def foreground_mask(depth, *, mask=None, background=None, bg_threshold: float = 
     return fg
 
 
-def backproject(camera, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Camera-frame points of pixels with known depth.
-
-    Parameters
-    ----------
-    camera : gltrack.camera.Camera (its distortion is undone for the rays)
-    uv : (N, 2) float, pixel coordinates ``(u, v)``
-    z : (N,) float, metres along the optical axis
-
-    Returns
-    -------
-    (N, 3) float64, metres, OpenCV camera frame
-    """
-    uv = np.asarray(uv, dtype=np.float64)
-    if np.any(camera.dist):
-        uv = camera.undistort_points(uv)
-    z = np.asarray(z, dtype=np.float64)
-    x = (uv[:, 0] - camera.cx) / camera.fx * z
-    y = (uv[:, 1] - camera.cy) / camera.fy * z
-    return np.stack([x, y, z], axis=1)
-
-
 def _surface_graph(fg: np.ndarray, P: np.ndarray, index: np.ndarray, max_edge: float):
     """Sparse symmetric graph of 8-neighbour edges shorter than ``max_edge`` (3-D, metres)."""
     H, W = fg.shape
@@ -225,7 +203,7 @@ def geodesic_extrema(depth, camera, *, mask=None, background=None, k: int = 6,
     index = np.full(fg.shape, -1, dtype=np.int64)
     index[rr, cc] = np.arange(len(rr))
     uv = np.stack([cc, rr], axis=1).astype(np.float64)
-    P = backproject(camera, uv, z[rr, cc])
+    P = camera.backproject(uv, z[rr, cc], frame="camera")
     G = _surface_graph(fg, P, index, max_edge)
 
     n_comp, labels = connected_components(G, directed=False)
@@ -261,10 +239,8 @@ def geodesic_extrema(depth, camera, *, mask=None, background=None, k: int = 6,
         nv = np.linalg.norm(v)
         direction[i] = v / nv if nv > 0 else (0.0, 1.0)
 
-    def to_world(X):  # X_w = R^T (X_c - t), row-vector form
-        return (X - camera.t) @ camera.R
-
     return InterestPoints(
-        pixels=uv[found], points=to_world(P[found]), points_cam=P[found],
+        pixels=uv[found], points=camera.to_world(P[found]), points_cam=P[found],
         geodesic=np.array(scores), centre_distance=d_centre[found], direction=direction,
-        centre_pixel=uv[centre], centre_point=to_world(P[centre][None])[0], n_pixels=len(keep))
+        centre_pixel=uv[centre], centre_point=camera.to_world(P[centre][None])[0],
+        n_pixels=len(keep))

@@ -76,13 +76,19 @@ def depth_tolerance(background, base: float = 0.08, sigmas: float = 3.0,
 
 
 def foreground_points(depth, camera) -> np.ndarray:
-    """(P, 3) world points of the valid pixels of a depth image, metres."""
+    """World points of the valid pixels of a depth image.
+
+    Parameters
+    ----------
+    depth : (H, W) float, metres, 0 = invalid
+    camera : gltrack.camera.Camera of the (undistorted pinhole) depth image
+
+    Returns
+    -------
+    (P, 3) float64, metres, world; row order of ``np.nonzero(depth > 0)``
+    """
     z = np.asarray(depth, dtype=np.float64)
     v, u = np.nonzero(z > 0)
     if len(u) == 0:
         return np.zeros((0, 3))
-    zz = z[v, u]
-    x = (u - camera.cx) / camera.fx * zz
-    y = (v - camera.cy) / camera.fy * zz
-    cam_pts = np.stack([x, y, zz], axis=1)
-    return (cam_pts - camera.t) @ camera.R  # R^T (p - t)
+    return camera.backproject(np.stack([u, v], axis=1), z[v, u], distort=False)
