@@ -27,7 +27,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .blobs import BlobModel, bgr_to_yuv, fit_blobs, mixture_kl, mixture_loglik, part_colours
+from .blobs import (BlobModel, bgr_to_yuv, fit_blobs, mixture_kl, mixture_loglik, part_colours,
+                    place_on_centroid)
 from .voxels import carve, point_colours
 
 log = logging.getLogger(__name__)
@@ -291,10 +292,4 @@ def placed_candidates(evidence: BlobEvidence, body, prototypes, headings: int) -
     -------
     (K * H, D) float64, prototype k at heading h in row ``k * H + h``.
     """
-    d = body.dofs
-    H = max(int(headings), 1)
-    P = np.repeat(d.validate(prototypes), H, axis=0)
-    P[:, d.index("pelvis_ry")] = np.tile(2 * np.pi * np.arange(H) / H, len(prototypes))
-    P = d.validate(P)
-    P[:, :3] += evidence.centroid() - evidence.model.centroid(body.skinning(P))
-    return d.validate(P)
+    return place_on_centroid(body, evidence.model, prototypes, headings, evidence.centroid())

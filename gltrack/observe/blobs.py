@@ -208,6 +208,30 @@ class BlobModel:
         return np.einsum("np,npi->ni", b.weights, b.means)
 
 
+def place_on_centroid(body, model: BlobModel, prototypes, headings: int, centroid) -> np.ndarray:
+    """Prototype poses at ``headings`` headings, each moved so its volume centroid is ``centroid``.
+
+    Parameters
+    ----------
+    body : gltrack.body.model.BodyModel
+    model : BlobModel of ``body`` (its volume centroid)
+    prototypes : (K, D) float, poses whose root translation and heading are replaced
+    headings : int >= 1, headings spread evenly over a full turn (heading 0 = facing +Z)
+    centroid : (3,) float, metres, e.g. the centroid of a visual hull
+
+    Returns
+    -------
+    (K * H, D) float64, prototype k at heading h in row ``k * H + h``.
+    """
+    d = body.dofs
+    H = max(int(headings), 1)
+    P = np.repeat(d.validate(prototypes), H, axis=0)
+    P[:, d.index("pelvis_ry")] = np.tile(2 * np.pi * np.arange(H) / H, len(prototypes))
+    P = d.validate(P)
+    P[:, :3] += np.asarray(centroid, dtype=np.float64) - model.centroid(body.skinning(P))
+    return d.validate(P)
+
+
 def gaussian_kl(mu_f, cov_f, mu_g, cov_g) -> np.ndarray:
     """Closed-form ``KL(f || g)`` between Gaussians, nats, broadcast over leading axes.
 

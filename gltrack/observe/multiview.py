@@ -138,7 +138,8 @@ class SilhouetteLikelihood:
 
     @property
     def channels(self) -> list[str]:
-        return ["silhouette", "appearance"] if self.use_appearance else ["silhouette"]
+        """Engine channels scored: the colour channel once the appearance model exists."""
+        return ["silhouette", "appearance"] if self.appearance is not None else ["silhouette"]
 
     def init_appearance(self, params, images, masks, full: bool = True, rng=None) -> None:
         """Build the colour model from the body posed at ``params`` (D,) over ``images`` and
