@@ -18,7 +18,7 @@ from gltrack.body.skeleton import default_skeleton
 from gltrack.camera import look_at_camera
 from gltrack.gl.programs import ShaderError
 from gltrack.render import reference as ref
-from gltrack.render.engine import CustomCost, DepthCostParams, ScoringEngine, _grid_for
+from gltrack.render.engine import CustomCost, DepthCostParams, ScoringEngine, grid_for
 
 TILE = 64
 
@@ -59,9 +59,9 @@ def assert_close(engine, reference, what):
 
 def test_grid_is_power_of_two():
     for n, g in [(1, (1, 1)), (2, (2, 1)), (3, (2, 2)), (5, (4, 2)), (1024, (32, 32))]:
-        assert _grid_for(n, 64) == g
+        assert grid_for(n, 64) == g
     with pytest.raises(ValueError):
-        _grid_for(5000, 64)
+        grid_for(5000, 64)
 
 
 def test_rendered_tiles_match_reference(ctx, body, rng):

@@ -60,21 +60,19 @@ def _rig(n_cameras, kind):
 
 def _bound_rate(ctx, eng, n, repeats):
     """Candidates/s for the same instanced triangles with a trivial shader (the draw-rate bound)."""
-    from gltrack.render.engine import _grid_for
+    from gltrack.render.engine import grid_for
 
     prog = eng.programs.get(vertex="trivial.vert", fragment="trivial.frag")
-    vao = ctx.vertex_array(prog, [(eng._vbo_pos, "3f", "in_pos")], index_buffer=eng._ibo,
-                           index_element_size=4)
-    cols, rows = _grid_for(min(n, eng.max_batch), eng.max_tiles_side)
-    t = eng._target(cols, rows)
+    vao = eng.mesh_vertex_array(prog)
+    fbo = eng.depth_framebuffer(*grid_for(min(n, eng.max_batch), eng.max_tiles_side))
     batches = [min(eng.max_batch, n - s) for s in range(0, n, eng.max_batch)]
 
     def draw():
         for b in batches:
-            cb, rb = _grid_for(b, eng.max_tiles_side)
+            cb, rb = grid_for(b, eng.max_tiles_side)
             for v in eng.views:
-                t["fbo_z"].use()
-                t["fbo_z"].clear(depth=1.0)
+                fbo.use()
+                fbo.clear(depth=1.0)
                 ctx.enable(moderngl.DEPTH_TEST)
                 prog["view"].write(v.view.T.copy().tobytes())
                 proj = np.asarray(v.cam_tile.gl_projection(eng.near, eng.far), np.float32)
@@ -175,9 +173,9 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
             for c, cam in enumerate(cams):
                 st = cam.scaled(tile, tile)
                 rz, rtri = ref.render_candidates(mesh, S[:k], st.K, st.R, st.t, tile, tile)
-                small = eng._to_tile(obs[c].astype(np.float32))
+                small = eng.to_tile(obs[c].astype(np.float32))
                 if "appearance" in channels:
-                    bits_t = eng._to_tile(obs_bits[c].view(np.float32)).view(np.uint32)
+                    bits_t = eng.to_tile(obs_bits[c].view(np.float32)).view(np.uint32)
                 for i in range(k):
                     if kind == "depth":
                         want, have = ref.depth_cost(rz[i], small), got[i, c, 0]
@@ -196,7 +194,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
             # The naive way renders at the tile resolution too, so both do the same pixel work.
             st = [c.scaled(tile, tile) for c in cams]
             Ks, Rs, ts = (np.stack([getattr(c, a) for c in st]) for a in ("K", "R", "t"))
-            small = [eng._to_tile(o.astype(np.float32)) for o in obs]
+            small = [eng.to_tile(o.astype(np.float32)) for o in obs]
             base_obs = small[0] if kind == "depth" else np.stack(small) > 0
             base = run_baseline_in_subprocess(
                 "candidates_per_s", mesh, Ks, Rs, ts, tile, tile, base_obs, S[:n_base],

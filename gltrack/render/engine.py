@@ -86,8 +86,25 @@ class CustomCost:
     path: str
 
 
-def _grid_for(n: int, max_tiles_side: int) -> tuple[int, int]:
-    """Smallest power-of-two (cols, rows) grid with cols in {rows, 2 rows} holding n tiles."""
+def grid_for(n: int, max_tiles_side: int) -> tuple[int, int]:
+    """The tile grid of a batch: the smallest power-of-two (cols, rows) grid, with cols in
+    {rows, 2 rows}, holding ``n`` tiles.
+
+    Parameters
+    ----------
+    n : int, number of candidates (tiles) in the batch
+    max_tiles_side : int, largest number of tiles along a grid side
+        (:attr:`ScoringEngine.max_tiles_side`)
+
+    Returns
+    -------
+    (cols, rows) : tuple of int
+
+    Raises
+    ------
+    ValueError
+        The grid would need more than ``max_tiles_side`` tiles on a side.
+    """
     cols = rows = 1
     while cols * rows < n:
         if cols == rows:
@@ -262,9 +279,21 @@ class ScoringEngine:
             raise ValueError(f"{what} for camera {v.camera.name!r} has size {arr.shape[1]}x{arr.shape[0]},"
                              f" the camera is {w}x{h}")
 
-    def _to_tile(self, img):
-        # INTER_NEAREST_EXACT samples the source pixel whose centre is nearest to each tile
-        # pixel's centre (plain INTER_NEAREST is off by up to most of a pixel when shrinking).
+    def to_tile(self, img) -> np.ndarray:
+        """An observation image resampled to the tile, as the engine uploads it.
+
+        Nearest-neighbour sampling (``cv2.INTER_NEAREST_EXACT``: the source pixel whose centre is
+        nearest to each tile pixel's centre; plain ``INTER_NEAREST`` is off by up to most of a
+        pixel when shrinking), so values (depths, mask and bit-mask words) are never mixed.
+
+        Parameters
+        ----------
+        img : (H, W) or (H, W, C) array at a camera's resolution, any dtype cv2.resize takes
+
+        Returns
+        -------
+        (tile, tile) or (tile, tile, C) array of the same dtype
+        """
         return cv2.resize(img, (self.tile, self.tile), interpolation=cv2.INTER_NEAREST_EXACT)
 
     def set_camera(self, cam: int, camera):
@@ -299,7 +328,7 @@ class ScoringEngine:
             raise ValueError(f"depth must be a 2-D image, got shape {z.shape}")
         self._check_size(v, z, "depth")
         z = np.where(np.isfinite(z) & (z > 0), z, 0).astype(np.float32)
-        v.obs_z = self._upload(v.obs_z, np.ascontiguousarray(self._to_tile(z)), 1, "f4")
+        v.obs_z = self._upload(v.obs_z, np.ascontiguousarray(self.to_tile(z)), 1, "f4")
 
     def set_masks(self, cam: int, foreground, blocking=None):
         """Upload a foreground mask and an optional blocking mask (True = ignore the pixel).
@@ -314,7 +343,7 @@ class ScoringEngine:
         bl = np.zeros_like(fg, dtype=bool) if blocking is None else np.asarray(blocking)
         self._check_size(v, bl, "blocking mask")
         rg = np.stack([fg != 0, bl != 0], axis=-1).astype(np.float32)
-        v.obs_mask = self._upload(v.obs_mask, np.ascontiguousarray(self._to_tile(rg)), 2, "f4")
+        v.obs_mask = self._upload(v.obs_mask, np.ascontiguousarray(self.to_tile(rg)), 2, "f4")
 
     def set_appearance(self, cam: int, obs_bits, tri_bits):
         """Upload observed HLS bitmasks and the triangles' colour-cluster bitmasks.
@@ -332,7 +361,7 @@ class ScoringEngine:
         tb = np.asarray(tri_bits)
         if tb.shape != (self.mesh.n_faces, 3) or tb.dtype != np.uint32:
             raise ValueError(f"tri_bits must be ({self.mesh.n_faces}, 3) uint32, got {tb.shape} {tb.dtype}")
-        tiled = np.ascontiguousarray(self._to_tile(ob.view(np.float32)).view(np.uint32))
+        tiled = np.ascontiguousarray(self.to_tile(ob.view(np.float32)).view(np.uint32))
         v.obs_bits = self._upload(v.obs_bits, tiled, 3, "u4")
         rows = -(-len(tb) // _TRI_BITS_WIDTH)
         padded = np.zeros((rows * _TRI_BITS_WIDTH, 3), np.uint32)
@@ -383,7 +412,7 @@ class ScoringEngine:
 
     def _score_batch(self, S, channels):
         n = S.shape[0]
-        cols, rows = _grid_for(n, self.max_tiles_side)
+        cols, rows = grid_for(n, self.max_tiles_side)
         t = self._target(cols, rows)
         t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
         if self._auto_pending:
@@ -470,6 +499,38 @@ class ScoringEngine:
         means = raw.reshape(rows * cols, 4)[:n].astype(np.float64)
         return means * float(self.tile * self.tile)
 
+    # ------------------------------------------------------------------- for benchmarks
+    def mesh_vertex_array(self, program) -> moderngl.VertexArray:
+        """The mesh's rest-pose vertex positions and triangles bound to another program.
+
+        The program reads ``in_pos`` (vec3, metres) and is drawn instanced like the engine's
+        own (e.g. a trivial shader that measures the draw-rate bound, ``gltrack bench engine``).
+
+        Parameters
+        ----------
+        program : moderngl.Program with a ``vec3 in_pos`` attribute
+
+        Returns
+        -------
+        moderngl.VertexArray, indexed; the caller releases it
+        """
+        return self.ctx.vertex_array(program, [(self._vbo_pos, "3f", "in_pos")],
+                                     index_buffer=self._ibo, index_element_size=4)
+
+    def depth_framebuffer(self, cols: int, rows: int) -> moderngl.Framebuffer:
+        """The depth-only framebuffer of the engine's render target for a tile grid.
+
+        Parameters
+        ----------
+        cols, rows : int, the grid (:func:`grid_for`)
+
+        Returns
+        -------
+        moderngl.Framebuffer, ``cols * tile`` x ``rows * tile`` pixels, one float colour
+        attachment and a depth buffer; owned and cached by the engine (do not release it)
+        """
+        return self._target(cols, rows)["fbo_z"]
+
     def _fullscreen_vao(self, prog):
         if not hasattr(self, "_fs_vaos"):
             self._fs_vaos = {}
@@ -509,7 +570,7 @@ class ScoringEngine:
         n = S.shape[0]
         if n > self.max_batch:
             raise ValueError(f"render_tiles takes at most {self.max_batch} candidates")
-        cols, rows = _grid_for(n, self.max_tiles_side)
+        cols, rows = grid_for(n, self.max_tiles_side)
         t = self._target(cols, rows)
         t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
         self._render(t, self._check_view(cam), n, cols, rows)
