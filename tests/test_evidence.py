@@ -250,6 +250,15 @@ def test_nearest_part_rule_does_not_swap_limbs(body, ep_problem):
     assert calls == [1]  # ... now only the right foot, the nearer one
 
 
+def test_shipped_part_classifier_is_a_package_asset():
+    from gltrack import asset_path
+
+    path = asset_path("parts.npz")
+    assert path.is_file() and path.parent.name == "assets"
+    model = C.PartClassifier.load(path)
+    assert model.label_radius > 0
+
+
 def test_training_ranges_are_disjoint_from_the_bench():
     from gltrack.data.depth_clips import CLIPS, TRAIN_RANGES, bench_range
 

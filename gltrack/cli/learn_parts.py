@@ -1,10 +1,11 @@
 """``gltrack learn-parts``: train the head/hand/foot patch classifier from depth datasets.
 
-The shipped model (``gltrack/assets/parts.npz``) is rebuilt by
-``gltrack learn-parts --mocap ../shared/mocap --out gltrack/assets/parts.npz --seed 0``: depth
-datasets synthesised from the depth bench's CMU clips at source frames disjoint from the
-bench's (:data:`gltrack.data.depth_clips.TRAIN_RANGES`) plus ``--frames`` (400) rendered random
-poses. Real motion (a spin, a dance, turning away from the camera, 3-5 m away) teaches the patch
+The shipped model (``assets/parts.npz`` in the repository, ``gltrack.asset_path("parts.npz")``
+in any install) is rebuilt by
+``gltrack learn-parts --mocap ../shared/mocap --out assets/parts.npz --seed 0``: depth datasets
+synthesised from the depth bench's CMU clips at source frames disjoint from the bench's
+(:data:`gltrack.data.depth_clips.TRAIN_RANGES`) plus ``--frames`` (400) rendered random poses.
+Real motion (a spin, a dance, turning away from the camera, 3-5 m away) teaches the patch
 classifier what the random poses at 3.6 m alone did not (that model found the head at 38 % and
 the hands at 39 % of the hop clip's head and hand interest points); the random poses keep it
 general (trained on the clips alone it missed the hand of the unit tests' procedural subject).
