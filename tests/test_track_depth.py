@@ -15,7 +15,7 @@ from gltrack.data.results import load_results
 from gltrack.eval.metrics import evaluate
 
 sys.path.insert(0, str(Path(__file__).parent))
-from trackdata import make_depth_dataset  # noqa: E402
+from trackdata import make_depth_dataset, smooth_motion  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -102,3 +102,33 @@ def test_resume_after_kill_loses_no_frame(tmp_path):
     for a, b in zip(before, after):
         assert a == b, "finished frames must survive unchanged"
     assert load_results(out)["params"].shape[0] == 40
+
+
+@pytest.mark.parametrize("turn, shift", [(np.pi / 2, 0.0), (-2.0, 0.6)])
+def test_auto_init_finds_a_turned_and_shifted_body(tmp_path, ctx, turn, shift):
+    """--init auto from nothing: side-on (a view that fits about as well turned 180 degrees)
+    and turned away and shifted, the library search plus hill climbing lands on the body."""
+    from gltrack.body.model import BodyModel, body_to_meta
+    from gltrack.camera import depth_camera_sr4000
+    from gltrack.data.dataset import Dataset, DatasetWriter
+    from gltrack.render import reference as ref
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    body = BodyModel.build()
+    P = smooth_motion(body, 1, np.random.default_rng(0))
+    P[:, body.dofs.index("pelvis_ry")] += turn
+    P[:, 0] += shift
+    cam = depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
+    z, _ = ref.render_candidates(body.mesh, body.skinning(P), cam.K, cam.R, cam.t, cam.width,
+                                 cam.height)
+    with DatasetWriter(tmp_path / "ds", "depth", 30.0, [cam], body=body_to_meta(body.skeleton)) as w:
+        w.write_depth(0, 0, z[0])
+    tr = HillClimbDepthTracker(Dataset.open(tmp_path / "ds"), body, ctx, DepthOptions())
+    try:
+        x = tr.auto_init(0)
+    finally:
+        tr.close()
+    err = np.linalg.norm(body.joints(x[None])[0] - body.joints(P)[0], axis=1)
+    yaw = body.dofs.index("pelvis_ry")
+    assert err.mean() < 0.06 and err.max() < 0.15, err
+    assert abs(np.angle(np.exp(1j * (x[yaw] - P[0, yaw])))) < 0.3
