@@ -137,8 +137,9 @@ def _track_run(ds, method, opts, out, seed, hooks=()):
     from gltrack.track.runner import track
 
     t0 = time.perf_counter()
+    # the oracle protocol: the true first pose (and the dataset's true body)
     timing = track(ds, method, out, options=opts, overwrite=True, progress=False, seed=seed,
-                   hooks=hooks)
+                   hooks=hooks, init="groundtruth")
     wall = time.perf_counter() - t0
     res = load_results(out)
     with Dataset.open(ds) as d:
