@@ -1,4 +1,4 @@
-"""The CMU clips behind the depth bench and the part classifier's training, and their depth datasets.
+"""The CMU clips of the depth bench and of the part classifier's training, as depth datasets.
 
 ``gltrack bench depth`` (:mod:`gltrack.bench.depth`) tracks :data:`CLIPS` (a walk towards the
 camera, one-legged hops, salsa; source ranges avoid the clips' calibration jumps and the salsa's
@@ -61,7 +61,8 @@ def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) ->
            "--overwrite"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        raise RuntimeError(f"gltrack synth failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
+        raise RuntimeError(f"gltrack synth failed ({proc.returncode}): "
+                           f"{proc.stderr.strip()[-500:]}")
     return out
 
 
