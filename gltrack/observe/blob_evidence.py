@@ -117,7 +117,7 @@ class BlobEvidence:
 
     # -- reconstruction -------------------------------------------------------------------
     def _background_models(self):
-        from gltrack.observe.colour_carve import YuvBackground
+        from .background import YuvBackground
 
         if self._backgrounds is None:
             models = []

@@ -6,6 +6,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+class NoPersonError(ValueError):
+    """An automatic start found no person in the frame (the runner then tries later frames)."""
+
+
 @dataclass
 class FrameEstimate:
     """A tracker's answer for one frame.

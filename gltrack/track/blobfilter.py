@@ -31,7 +31,7 @@ from gltrack.observe.blob_evidence import (LOST_KL, SEGMENTATIONS, BlobEvidence,
                                            ColourAcquisition, placed_candidates, stage_seconds)
 from gltrack.sample import AnnealedParticleFilter, StateSpace, cost_weights
 
-from .base import FrameEstimate, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -154,6 +154,9 @@ class CondensationTracker(Tracker):
         """A standing pose at ``headings`` headings on the voxels' centroid; best KL wins."""
         ev = self.evidence
         ev.set_frame(frame)
+        if ev.empty:
+            raise NoPersonError(f"frame {frame}: no voxels reconstructed inside the tracking "
+                                f"volume {ev.volume.round(2).tolist()}: no person to start from")
         P = placed_candidates(ev, self.body, self.body.dofs.zero(self.body.skeleton)[None],
                               self.opt.headings)
         ev.fit(P[ev.rank(P, 3)])

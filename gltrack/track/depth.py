@@ -54,7 +54,7 @@ from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb
 from gltrack.sample.partitions import default_partitions, hill_climb_order
 
-from .base import FrameEstimate, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -341,15 +341,15 @@ class HillClimbDepthTracker(Tracker):
 
         Raises
         ------
-        ValueError
+        NoPersonError
             Too few foreground pixels in the frame (no person, or nothing valid).
         """
         o, d = self.opt, self.body.dofs
         z = self.obs(frame)
         pts = foreground_points(z, self.obs.pinhole)
         if len(pts) < 50:
-            raise ValueError(f"frame {frame}: too few foreground depth pixels ({len(pts)}) to "
-                             "initialise: no person in front of the camera?")
+            raise NoPersonError(f"frame {frame}: too few foreground depth pixels ({len(pts)}) to "
+                                "initialise: no person in front of the camera?")
         c = pts.mean(axis=0)
         ray = c - self.obs.pinhole.center
         c = c + o.init_depth_offset * ray / np.linalg.norm(ray)

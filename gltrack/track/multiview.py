@@ -75,7 +75,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 
-from .base import FrameEstimate, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -337,7 +337,7 @@ class MultiviewTracker(Tracker):
 
         Raises
         ------
-        ValueError
+        NoPersonError
             The cameras' foreground masks do not meet in the tracking volume (no person).
         """
         o, d = self.opt, self.body.dofs
@@ -345,8 +345,9 @@ class MultiviewTracker(Tracker):
         volume = default_volume(self.obs.pinholes)
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=2, distort=False)
         if len(hull) == 0:
-            raise ValueError(f"frame {frame}: the cameras' foreground masks do not meet inside the "
-                             f"tracking volume {volume.round(2).tolist()}: no person to start from")
+            raise NoPersonError(f"frame {frame}: the cameras' foreground masks do not meet inside "
+                                f"the tracking volume {volume.round(2).tolist()}: no person to "
+                                "start from")
         pts, vol = hull.points(max_size=0.06)
         centroid = (pts * vol[:, None]).sum(axis=0) / vol.sum()
         _, library = canonical_poses(d, self.body.skeleton)

@@ -42,7 +42,7 @@ from gltrack.observe.multiview import MultiviewObservation, SilhouetteLikelihood
 from gltrack.sample import SIRFilter, StateSpace, cost_weights, systematic_resample
 from gltrack.sample.weights import Weights, annealing_exponent
 
-from .base import FrameEstimate, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker
 from .blobfilter import BlobEvidenceOptions
 from .options import at_least, choice, within
 
@@ -189,6 +189,11 @@ class VlmmTracker(Tracker):
         return P, k, self.costs(frame, P)
 
     def auto_init(self, frame):
+        self._load(frame)
+        if self.evidence.empty:
+            raise NoPersonError(f"frame {frame}: no voxels reconstructed inside the tracking "
+                                f"volume {self.evidence.volume.round(2).tolist()}: no person to "
+                                "start from")
         P, _, c = self._search(frame)
         log.info("auto init: best of %d cluster/heading candidates, cost %.3g", len(P), c.min())
         return P[int(np.argmin(c))]
