@@ -95,6 +95,7 @@ def test_resume_after_kill_loses_no_frame(tmp_path):
     before = [json.loads(line) for line in log.read_text().splitlines() if line.strip().endswith("}")]
     assert 4 <= len(before) < 40, "the run must have been killed part-way"
     assert not (out / "poses.npz").exists()
+    assert json.loads((out / "body.json").read_text())["source"] == "dataset"  # from the start
     rc = subprocess.run(cmd + ["--resume"], capture_output=True, timeout=300)
     assert rc.returncode == 0, rc.stderr.decode()
     after = [json.loads(line) for line in log.read_text().splitlines()]

@@ -252,6 +252,27 @@ def _end_vector(skeleton, pos, name: str, H: float) -> np.ndarray:
     return np.array([0.0, -0.039 * H, 0.11 * H])  # ankle -> toe tip
 
 
+def shape_problem(lod, girth_scale, girths) -> tuple[str, str] | None:
+    """The first invalid shape parameter of :func:`make_body_mesh`, or None.
+
+    Returns
+    -------
+    (name, problem) : the parameter's name ("lod", "girth_scale" or "girths") and what is wrong
+    """
+    if lod not in _LOD:
+        return "lod", f"must be one of {sorted(_LOD)}, got {lod!r}"
+    if not (np.isfinite(girth_scale) and 0.2 <= girth_scale <= 5.0):
+        return "girth_scale", f"must be within 0.2..5, got {girth_scale}"
+    girths = dict(girths or {})
+    unknown = sorted(set(girths) - set(GIRTH_RATIOS))
+    if unknown:
+        return "girths", f"unknown girths {unknown}; known: {', '.join(GIRTH_RATIOS)}"
+    for k, v in girths.items():
+        if not (np.isfinite(v) and v > 0):
+            return "girths", f"girth {k!r} must be a positive circumference in metres, got {v}"
+    return None
+
+
 def make_body_mesh(skeleton, *, lod: int = 1, girth_scale: float = 1.0,
                    girths: dict | None = None) -> BodyMesh:
     """A smooth, closed, linear-blend-skinned body in the rest (T-) pose of ``skeleton``.
@@ -288,17 +309,10 @@ def make_body_mesh(skeleton, *, lod: int = 1, girth_scale: float = 1.0,
         Vertices float32 metres in the rest pose; ``part`` indexes :data:`PARTS` (the neck and
         the shoulder blobs count as ``torso``).
     """
-    if lod not in _LOD:
-        raise ValueError(f"lod must be one of {sorted(_LOD)}, got {lod!r}")
-    if not (np.isfinite(girth_scale) and 0.2 <= girth_scale <= 5.0):
-        raise ValueError(f"girth_scale must be within 0.2..5, got {girth_scale}")
+    bad = shape_problem(lod, girth_scale, girths)
+    if bad:
+        raise ValueError(f"{bad[0]}: {bad[1]}")
     girths = dict(girths or {})
-    unknown = sorted(set(girths) - set(GIRTH_RATIOS))
-    if unknown:
-        raise ValueError(f"unknown girths {unknown}; known: {', '.join(GIRTH_RATIOS)}")
-    for k, v in girths.items():
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"girth {k!r} must be a positive circumference in metres, got {v}")
 
     H = _stature(skeleton)
     P = skeleton.rest_positions()

@@ -33,12 +33,16 @@ def _outputs(args):
 
 def run(args):
     from gltrack.data.dataset import Dataset, load_groundtruth
-    from gltrack.data.results import load_results
+    from gltrack.data.results import load_results, recorded_body
     from gltrack.eval import metrics as M
     from gltrack.eval import report
+    from gltrack.export import body_for_result
 
     _outputs(args)
     result = load_results(args.result)
+    recorded = recorded_body(args.result)
+    if recorded is not None:  # refuses a body.json that is not the result's
+        body_for_result(result, where=str(recorded[2]), body=recorded[0])
     ds_path = Path(args.dataset)
     fps = None
     if ds_path.is_file():
@@ -50,6 +54,10 @@ def run(args):
         if gt is None:
             raise ValueError(f"{ds_path}: dataset has no groundtruth.npz, nothing to score against")
     metrics = M.evaluate(result, gt)
+    if recorded is not None:
+        body, record, _ = recorded
+        metrics["body"] = {"source": record.get("source"), "preset": body.dofs.preset,
+                           "height_m": body.skeleton.height()}
     print(f"{args.result}: method {result['method']!r} vs {args.dataset}")
     print(report.summary_table(metrics))
     if args.json:

@@ -18,14 +18,15 @@ def add_arguments(p):
     p.add_argument("--format", choices=["bvh", "glb", "trc", "json"], default=None,
                    help="output format (default: from the --out extension)")
     p.add_argument("--dataset", default=None,
-                   help="dataset the result was tracked on: its body and fps (default: the "
-                        "default body at 30 fps)")
+                   help="dataset the result was tracked on: its fps, and its body for results "
+                        "without RESULT/body.json (default: the default body at 30 fps)")
     p.add_argument("--out", default=None,
                    help="file to write (default: RESULT/poses.<format>)")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the dataset's, else 30)")
     p.add_argument("--dof", choices=["full", "38", "25"], default=None,
-                   help="DOF preset the result was tracked with (default: the dataset's body)")
+                   help="DOF preset the result was tracked with, for results without "
+                        "RESULT/body.json (which records it; default: the dataset's body)")
     p.add_argument("--points", choices=["markers", "joints"], default="markers",
                    help="what a .trc file holds: surface markers or joint centres")
 
@@ -58,18 +59,22 @@ def _format_and_out(args):
 
 def run(args):
     from gltrack.data.dataset import Dataset
-    from gltrack.data.results import load_results
+    from gltrack.data.results import load_results, recorded_body
     from gltrack.export import body_for_result, export_result
 
     fmt, out = _format_and_out(args)
     result = load_results(args.result)
+    recorded = recorded_body(args.result)
     body_meta, fps, where = None, _DEFAULT_FPS, "the default body"
     if args.dataset:
         with Dataset.open(args.dataset) as ds:
             body_meta, fps, where = ds.body, ds.fps, str(Path(args.dataset) / "meta.json")
     if args.fps is not None:
         fps = args.fps
-    body = body_for_result(result, body_meta, args.dof, where=where)
+    if recorded is not None:
+        body_meta, where = None, str(recorded[2])
+    body = body_for_result(result, body_meta, args.dof, where=where,
+                           body=recorded[0] if recorded else None)
     export_result(result, out, fmt, body, fps, points=args.points)
     print(f"{out}: {fmt}, {len(result['params'])} frames at {fps:g} fps")
     return 0

@@ -23,7 +23,8 @@ def add_arguments(p):
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="render only the first N frames of the result")
     p.add_argument("--dof", choices=["full", "38", "25"], default=None,
-                   help="DOF preset the result was tracked with (default: the dataset's body)")
+                   help="DOF preset the result was tracked with, for results without "
+                        "RESULT/body.json (which records it; default: the dataset's body)")
 
 
 def run(args):

@@ -32,7 +32,13 @@ def add_arguments(p):
     p.add_argument("--init", default="groundtruth",
                    help="initial pose: 'groundtruth' (frame 0 of groundtruth.npz), 'auto', or a .npy/.npz file")
     p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
-    p.add_argument("--dof", choices=["full", "38", "25"], help="DOF preset (default: the dataset's body)")
+    p.add_argument("--body", default="dataset", metavar="dataset|FILE.json",
+                   help="body to track with, recorded in RESULT/body.json: 'dataset' = the "
+                        "body record in the dataset's meta.json, i.e. the recorded (for synthetic "
+                        "data the true) skeleton, an oracle; or a body.json written by an earlier "
+                        "run (or its results folder) or by hand")
+    p.add_argument("--dof", choices=["full", "38", "25"],
+                   help="DOF preset overriding the --body record's")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results folder")
     p.add_argument("--seed", type=int, default=0, help="random seed (particle filters)")
@@ -100,7 +106,7 @@ def run(args):
     timing = track(args.dataset, args.method, args.out, options=options,
                    init=args.init, resume=args.resume, overwrite=args.overwrite,
                    frames=_frames(args.frames, UsageError), preset=args.dof, seed=args.seed,
-                   progress=not args.quiet)
+                   progress=not args.quiet, body=args.body)
     fps = timing.get("fps")
     print(f"tracked {timing['frames']} frames with {args.method} in {timing['seconds']:.1f} s "
           f"({fps:.2f} frames/s, {timing['evaluations']} candidate evaluations) -> {args.out}"

@@ -14,11 +14,15 @@ Layout::
       timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total} and, when
                     the tracker reports per-stage times (info "stage_seconds"), "stage_seconds":
                     their sums over the frames
+      body.json     the body the tracker used (:func:`gltrack.body.model.body_record`: skeleton,
+                    DOF preset, mesh level of detail and girths, "source"), written when the run
+                    starts; export, render and eval rebuild the body from it
 
 ``frames.jsonl`` is the source of truth while tracking: a process killed at any point loses at
 most the frame it was writing, and ``ResultsWriter(..., resume=True)`` continues after the last
-complete line. ``poses.npz`` and ``timing.json`` are written through a temporary file and an
-atomic rename, so they are either absent or complete.
+complete line. ``poses.npz``, ``timing.json`` and ``body.json`` are written through a temporary
+file and an atomic rename, so they are either absent or complete. Results written before
+``body.json`` existed have none; their readers fall back to the dataset's body.
 """
 from __future__ import annotations
 
@@ -38,6 +42,7 @@ FRAMES = "frames.jsonl"
 POSES = "poses.npz"
 TIMING = "timing.json"
 BVH = "poses.bvh"
+BODY = "body.json"
 #: Files derived from frames.jsonl: stale as soon as a resumed run appends.
 _DERIVED = (POSES, TIMING, BVH)
 _RECORD_KEYS = ("frame", "params", "joints", "markers", "score", "evaluations", "seconds")
@@ -92,14 +97,19 @@ def _atomic_savez(path, **arrays):
     _fsync_dir(path.parent)
 
 
-def _read_run(out):
-    path = Path(out) / RUN
+def _read_json(path, missing: str):
+    """The parsed JSON file ``path``; a one-line ValueError naming it (``missing`` if absent)."""
     try:
-        run = json.loads(path.read_text())
+        return json.loads(Path(path).read_text())
     except FileNotFoundError:
-        raise ValueError(f"{path}: missing (not a gltrack results folder?)") from None
+        raise ValueError(f"{path}: {missing}") from None
     except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: unreadable JSON: {exc}") from None
+
+
+def _read_run(out):
+    path = Path(out) / RUN
+    run = _read_json(path, "missing (not a gltrack results folder?)")
     if not isinstance(run, dict) or run.get("format") != FORMAT:
         raise ValueError(f"{path}: field 'format' must be {FORMAT!r}")
     if run.get("version") != VERSION:
@@ -113,6 +123,97 @@ def _read_run(out):
         if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
             raise ValueError(f"{path}: field {key!r} must be a list of strings")
     return run
+
+
+def _body_file(path) -> Path:
+    """``path/body.json`` for a results folder, else ``path`` itself (a body file)."""
+    path = Path(path)
+    return path / BODY if path.is_dir() else path
+
+
+def save_body_record(out, body, source) -> dict:
+    """Write ``out/body.json``, the record of the body a run tracks with (atomically).
+
+    Parameters
+    ----------
+    out : path, the results folder (must exist)
+    body : gltrack.body.model.BodyModel
+    source : str, where the body came from (:data:`gltrack.body.model.BODY_SOURCES`)
+
+    Returns
+    -------
+    dict, the record written (:func:`gltrack.body.model.body_record`)
+    """
+    from gltrack.body.model import body_record
+
+    record = body_record(body, source)
+    _write_body(out, record)
+    return record
+
+
+def _write_body(out, record: dict):
+    _atomic_write_bytes(Path(out) / BODY, json.dumps(record, indent=1).encode())
+
+
+def load_body_record(path):
+    """Read a body record: a results folder's ``body.json``, or any body file.
+
+    Parameters
+    ----------
+    path : path of a results folder or of a ``.json`` body file
+
+    Returns
+    -------
+    body : gltrack.body.model.BodyModel
+        The body rebuilt from the record (joint positions in metres).
+    record : dict
+        The parsed JSON as stored.
+
+    Raises
+    ------
+    ValueError
+        Missing, unreadable or invalid file: a one-line message naming the file and the field.
+    """
+    from gltrack.body.model import body_from_record
+
+    path = _body_file(path)
+    record = _read_json(path, "no such body file")
+    return body_from_record(record, where=str(path)), record
+
+
+def recorded_body(result):
+    """The body a results folder records, or None for results without ``body.json``.
+
+    Parameters
+    ----------
+    result : path of a results folder, or of a ``poses.npz`` inside one
+
+    Returns
+    -------
+    (BodyModel, dict, Path) or None
+        The body, its record and the ``body.json`` path (for messages).
+    """
+    result = Path(result)
+    path = (result.parent if result.is_file() else result) / BODY
+    if not path.exists():
+        return None
+    body, record = load_body_record(path)
+    return body, record, path
+
+
+def _body_difference(a: dict, b: dict):
+    """The first field (dotted) in which two body records differ, ignoring ``source``."""
+    for key in sorted(set(a) | set(b)):
+        if key == "source":
+            continue
+        va, vb = a.get(key), b.get(key)
+        if isinstance(va, dict) and isinstance(vb, dict):
+            sub = _body_difference(va, vb)
+            if sub:
+                return f"{key}.{sub}"
+        elif va != vb:
+            return key
+    return None
 
 
 def _parse_record(line, where, n_joints, n_markers):
@@ -185,9 +286,13 @@ class ResultsWriter:
     marker_names : sequence of str, (M,), optional
     resume : bool
         Continue an existing run: read ``frames.jsonl`` (dropping a torn last line with a warning)
-        and append after it. ``method`` and the names must match the stored run.
+        and append after it. ``method``, the names and the body must match the stored run.
     overwrite : bool
         Delete the results files of an existing run in ``out`` and start afresh.
+    body : dict, optional
+        The record of the body the run tracks with (:func:`gltrack.body.model.body_record`),
+        written to ``body.json`` with ``run.json`` before the first frame. On resume it must
+        equal the stored record (its ``source`` aside); a run without one stored gets it.
 
     Raises
     ------
@@ -197,7 +302,8 @@ class ResultsWriter:
         The stored run is damaged or does not match (on resume).
     """
 
-    def __init__(self, out, method, joint_names, marker_names=None, resume=False, overwrite=False):
+    def __init__(self, out, method, joint_names, marker_names=None, resume=False, overwrite=False,
+                 body=None):
         if resume and overwrite:
             raise ValueError("resume and overwrite exclude each other")
         self.out = Path(out)
@@ -209,9 +315,9 @@ class ResultsWriter:
         self._done = set()
         self._n_params = None
         self.out.mkdir(parents=True, exist_ok=True)
-        existing = [n for n in (RUN, FRAMES) + _DERIVED if (self.out / n).exists()]
+        existing = [n for n in (RUN, FRAMES, BODY) + _DERIVED if (self.out / n).exists()]
         if existing and resume:
-            self._resume()
+            self._resume(body)
         elif existing and not overwrite:
             raise FileExistsError(f"{self.out} already holds results ({', '.join(existing)}); "
                                   "resume or overwrite")
@@ -221,9 +327,11 @@ class ResultsWriter:
             run = {"format": FORMAT, "version": VERSION, "method": self.method,
                    "joint_names": self.joint_names, "marker_names": self.marker_names}
             _atomic_write_bytes(self.out / RUN, json.dumps(run, indent=1).encode())
+            if body is not None:
+                _write_body(self.out, body)
         self._f = open(self.out / FRAMES, "ab")
 
-    def _resume(self):
+    def _resume(self, body=None):
         run = _read_run(self.out)
         mine = {"method": self.method, "joint_names": self.joint_names,
                 "marker_names": self.marker_names}
@@ -231,6 +339,8 @@ class ResultsWriter:
             if run[key] != value:
                 raise ValueError(f"{self.out / RUN}: field {key!r} is {run[key]!r}, this run has "
                                  f"{value!r}; cannot resume")
+        if body is not None:
+            self._check_body(body)
         records, good = read_frames(self.out, len(self.joint_names), self._n_markers)
         path = self.out / FRAMES
         if path.exists() and path.stat().st_size != good:
@@ -250,6 +360,22 @@ class ResultsWriter:
             if (self.out / name).exists():
                 (self.out / name).unlink()
         log.info("resuming %s: %d frames done", self.out, len(records))
+
+    def _check_body(self, body):
+        """Refuse to resume with a body other than the stored one; store it if none is."""
+        path = self.out / BODY
+        mine = json.loads(json.dumps(body))  # the record as it reads back from disk
+        if not path.exists():
+            log.warning("%s: missing (results of an older run); recording this run's body", path)
+            _write_body(self.out, body)
+            return
+        stored = _read_json(path, "missing")
+        if not isinstance(stored, dict):
+            raise ValueError(f"{path}: must hold a JSON object (a gltrack body record)")
+        diff = _body_difference(stored, mine)
+        if diff:
+            raise ValueError(f"{path}: field {diff!r} differs from the body this run would use "
+                             f"(source {mine.get('source')!r}); cannot resume with another body")
 
     @property
     def done_frames(self):

@@ -108,7 +108,9 @@ class OverlayRenderer:
     cameras : "all", int, str or sequence of those
         Camera indices or names to show.
     preset : str, optional
-        DOF preset of the result (default: the dataset's body record).
+        DOF preset of the result (default: the recorded one). The body is the one the results
+        folder records in ``body.json``; results without one (older versions, or a result
+        passed as a dict) use the dataset's body record.
 
     Attributes
     ----------
@@ -119,14 +121,20 @@ class OverlayRenderer:
 
     def __init__(self, result, dataset, cameras="all", preset=None):
         from gltrack.data.dataset import Dataset
-        from gltrack.data.results import load_results
+        from gltrack.data.results import load_results, recorded_body
         from gltrack.export import body_for_result
 
+        recorded = None if isinstance(result, dict) else recorded_body(result)
         self.result = load_results(result) if not isinstance(result, dict) else result
         self._owns_dataset = not isinstance(dataset, Dataset)
         self.dataset = Dataset.open(dataset) if self._owns_dataset else dataset
         ds = self.dataset
-        self.body = body_for_result(self.result, ds.body, preset, where=str(ds.path / "meta.json"))
+        if recorded is not None:
+            self.body = body_for_result(self.result, None, preset, where=str(recorded[2]),
+                                        body=recorded[0])
+        else:
+            self.body = body_for_result(self.result, ds.body, preset,
+                                        where=str(ds.path / "meta.json"))
         order = np.argsort(self.result["frame"], kind="stable")
         self.rows = np.asarray(self.result["frame"], dtype=np.int64)[order]
         self._order = order
@@ -362,7 +370,8 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
         Render only the first ``max_frames`` result frames.
     progress : bool, show a tqdm bar
     fps : float, optional, video frame rate (default: the dataset's)
-    preset : str, optional, DOF preset of the result (default: the dataset's body)
+    preset : str, optional, DOF preset of the result (default: the recorded body's, see
+        :class:`OverlayRenderer`)
     min_height : int, optional
         Enlarge small frames (e.g. a 176x144 ToF camera) by an integer factor, nearest
         neighbour, until they are at least this tall, so the video is watchable.

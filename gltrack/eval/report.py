@@ -51,6 +51,10 @@ def summary_table(metrics):
         extra.append(f"joints scored: {len(metrics['joints'])} ({', '.join(metrics['joints'])})")
     if metrics.get("marker_source") == "joints":
         extra.append("marker errors use the scored joints (no markers on one side)")
+    if "body" in metrics:  # the results folder's body.json
+        b = metrics["body"]
+        extra.append(f"body: {b['source']} ({b['preset']} DOF preset, height "
+                     f"{b['height_m']:.3f} m)")
     return "\n".join(lines + extra)
 
 
@@ -99,7 +103,8 @@ def to_jsonable(metrics):
 
 
 def write_json(metrics, path):
-    """Write the metrics (summary keys, ``joints``, ``marker_source``, ``per_frame``) as JSON."""
+    """Write the metrics (summary keys, ``joints``, ``marker_source``, ``per_frame``, and
+    ``body`` when the result records one) as JSON."""
     path = Path(path)
     path.write_text(json.dumps(to_jsonable(metrics), indent=1) + "\n")
     return path

@@ -1,8 +1,10 @@
 """Exports of a tracking result for other tools: BVH, glTF binary, OpenSim TRC and JSON.
 
-The results folder does not record the body it was tracked with; it comes from the dataset's
-``meta.json`` (``body``) or, without a dataset, the default body. :func:`body_for_result` builds
-it and checks that the results' parameter vectors fit its DOF preset.
+A results folder records the body it was tracked with in ``body.json``
+(:func:`gltrack.data.results.recorded_body`); results written before that file existed take the
+body from the dataset's ``meta.json`` (``body``) or, without a dataset, the default body.
+:func:`body_for_result` checks that the result fits the body: its parameter vectors the DOF
+preset and, for a recorded body, its joints and markers those of the body.
 """
 from __future__ import annotations
 
@@ -17,8 +19,13 @@ log = logging.getLogger(__name__)
 FORMATS = {"bvh": ".bvh", "glb": ".glb", "trc": ".trc", "json": ".json"}
 
 
+#: Largest distance (metres) between a result's joints or markers and those its recorded body
+#: gives for the result's parameters (float32 skinning and JSON round trips stay far below).
+BODY_TOLERANCE_M = 1e-4
+
+
 def body_for_result(result: dict, body_meta: dict | None = None, preset: str | None = None,
-                    where: str = "the default body"):
+                    where: str = "the default body", body=None):
     """The body a result was tracked with.
 
     Parameters
@@ -26,11 +33,17 @@ def body_for_result(result: dict, body_meta: dict | None = None, preset: str | N
     result : dict
         From :func:`gltrack.data.results.load_results`.
     body_meta : dict, optional
-        A dataset's ``meta.json`` ``body`` record; None for the default body.
+        A dataset's ``meta.json`` ``body`` record; None for the default body. Unused when
+        ``body`` is given.
     preset : {"full", "38", "25"}, optional
-        DOF preset overriding the recorded one (as ``gltrack track --dof`` does).
+        DOF preset overriding the recorded one (as ``gltrack track --dof`` does). With ``body``
+        it may only repeat the recorded preset.
     where : str
-        Where the body record came from, for messages.
+        Where the body (record) came from, for messages.
+    body : gltrack.body.model.BodyModel, optional
+        The body the results folder records (``body.json``). The result's joint (and marker)
+        names and positions must be the ones this body gives for its ``params``, within
+        :data:`BODY_TOLERANCE_M`.
 
     Returns
     -------
@@ -40,19 +53,47 @@ def body_for_result(result: dict, body_meta: dict | None = None, preset: str | N
     ------
     ValueError
         The results' ``params`` length differs from the preset's DOF count (the message names
-        the preset that would fit, if any).
+        the preset that would fit, if any); ``preset`` disagrees with ``body``; the result's
+        joints or markers are not ``body``'s.
     """
     from gltrack.body.dofs import PRESETS, make_dofs
     from gltrack.body.model import body_from_meta
 
-    body = body_from_meta(body_meta, preset, where=where)
-    D = np.asarray(result["params"]).shape[1]
-    if D != body.dofs.size:
+    recorded = body is not None
+    if not recorded:
+        body = body_from_meta(body_meta, preset, where=where)
+    elif preset is not None and preset != body.dofs.preset:
+        raise ValueError(f"DOF preset {preset!r} disagrees with {where}, which records the "
+                         f"{body.dofs.preset!r} preset the result was tracked with (leave out --dof)")
+    params = np.asarray(result["params"])
+    D = params.shape[1]
+    if len(params) and D != body.dofs.size:  # a result with no frames has no DOF count
         fits = [p for p in PRESETS if make_dofs(body.skeleton, p).size == D]
         hint = f"; preset {fits[0]!r} has {D} (choose it)" if fits else ""
         raise ValueError(f"results params have {D} values, but the {body.dofs.preset!r} DOF "
                          f"preset of {where} has {body.dofs.size}{hint}")
+    if recorded:
+        _check_result_body(result, body, where)
     return body
+
+
+def _check_result_body(result: dict, body, where: str):
+    """Refuse a recorded body whose joints or markers are not the result's."""
+    checks = [("joint", result["joint_names"], body.skeleton.names, result["joints"], body.joints)]
+    if len(result.get("marker_names", [])):
+        checks.append(("marker", result["marker_names"], body.markers.names, result["markers"],
+                       body.marker_positions))
+    params = np.asarray(result["params"], dtype=np.float64)
+    for kind, names, body_names, xyz, positions in checks:
+        if list(names) != list(body_names):
+            raise ValueError(f"{where}: the body's {kind} names are not the result's "
+                             f"{kind}_names (the body file does not belong to this result)")
+        if len(params):
+            err = float(np.max(np.linalg.norm(positions(params) - np.asarray(xyz), axis=-1)))
+            if not err <= BODY_TOLERANCE_M:
+                raise ValueError(f"{where}: the body puts the result's {kind}s up to "
+                                 f"{1000 * err:.1f} mm away from the recorded {kind}s (the body "
+                                 "file does not belong to this result)")
 
 
 def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "markers") -> Path:

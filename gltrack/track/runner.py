@@ -1,7 +1,8 @@
 """Run a tracker over a dataset and write the results folder frame by frame (crash-safe).
 
 The method comes from :data:`gltrack.track.registry.METHODS`. The runner owns the GL context,
-the results writer (``frames.jsonl`` appended per frame, ``--resume`` continues after the last
+the results writer (``body.json``, the body tracked with, when the run starts;
+``frames.jsonl`` appended per frame, ``--resume`` continues after the last
 finished frame) and the final ``poses.npz`` / ``timing.json`` / ``poses.bvh``.
 
 Hooks: ``track(..., hooks=[h])`` calls ``h(tracker, frame)`` before every frame is tracked;
@@ -15,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gltrack.body.model import body_from_meta
 from gltrack.data.dataset import Dataset
 from gltrack.data.results import ResultsWriter
 from gltrack.export.bvh import write_params_bvh
 
+from .bodies import resolve_body
 from .registry import method as lookup
 
 log = logging.getLogger(__name__)
@@ -56,7 +57,7 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "groundtruth",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
-          hooks=()) -> dict:
+          hooks=(), body: str = "dataset") -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
@@ -65,7 +66,9 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     init : "groundtruth", "auto" or a pose file
     resume : continue an interrupted run in ``out``
     frames : (start, stop), optional sub-range of the dataset's frames
-    preset : DOF preset overriding the dataset's body record
+    preset : DOF preset overriding the body record's
+    body : "dataset" (meta.json's body record) or a body file
+        (:func:`gltrack.track.bodies.resolve_body`); recorded in ``out/body.json``
     progress : show a tqdm progress bar
     hooks : callables ``hook(tracker, frame)`` run before each frame is tracked (fault injection)
 
@@ -82,7 +85,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     if ds.rig != m.rig:
         raise ValueError(f"{ds.path}: method {method!r} needs a {m.rig} dataset, this one is {ds.rig!r}")
     opts = m.options.from_dict(options, where=f"options for {method}")
-    body = body_from_meta(ds.body, preset, where=str(Path(ds.path) / "meta.json"))
+    body, body_rec = resolve_body(body, ds, preset)  # the --body choice -> the BodyModel
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
         raise ValueError(f"frames {start}:{stop} outside the dataset's 0:{ds.frames}")
@@ -90,7 +93,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     rng = np.random.default_rng(seed)
     tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
-                           resume=resume, overwrite=overwrite)
+                           resume=resume, overwrite=overwrite, body=body_rec)
     try:
         done = writer.done_frames
         if resume and done:
