@@ -45,7 +45,9 @@ def dataset(tmp_path_factory):
     return out, body, P
 
 
-def _track(dataset_path, tmp_path, method, config, extra=()):
+def _track(dataset_path, tmp_path, method, config, extra=("--init", "groundtruth")):
+    """Track through the CLI; by default from the true first pose (the tracking tests measure
+    the filters, the automatic start has tests of its own)."""
     cfg = tmp_path / f"{method}.toml"
     cfg.write_text("\n".join(f"{k} = {json.dumps(v)}" for k, v in config.items()) + "\n")
     out = tmp_path / f"res_{method}"
@@ -91,7 +93,8 @@ def test_hps_tracks_better_than_standing_still(dataset, tmp_path):
 ])
 def test_other_methods_run_and_count_evaluations(dataset, tmp_path, method, config):
     path, body, P = dataset
-    metrics, frames = _track(path, tmp_path, method, config, ["--frames", "0:3"])
+    metrics, frames = _track(path, tmp_path, method, config,
+                             ["--frames", "0:3", "--init", "groundtruth"])
     per = {"sir": 200, "apf": 60 * 4, "ps": 40 * 10}[method]
     assert [f["evaluations"] for f in frames] == [per + 1] * 3
     # Three frames cover too little motion for an accuracy ranking; it must not diverge though.

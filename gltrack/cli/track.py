@@ -29,8 +29,10 @@ def add_arguments(p):
                    help="motion model of the multi-view particle filters (vlmm needs --behaviour)")
     p.add_argument("--behaviour", metavar="MODEL.npz",
                    help="behaviour model from `gltrack learn`: for --method vlmm, or with --prior vlmm")
-    p.add_argument("--init", default="groundtruth",
-                   help="initial pose: 'groundtruth' (frame 0 of groundtruth.npz), 'auto', or a .npy/.npz file")
+    p.add_argument("--init", default="auto",
+                   help="initial pose: 'auto' finds the body from nothing (a later frame when the "
+                        "first shows no person); 'groundtruth' takes the true first pose from "
+                        "groundtruth.npz (an oracle, for ablations only); or a .npy/.npz pose file")
     p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
     p.add_argument("--body", default="dataset", metavar="dataset|FILE.json",
                    help="body to track with, recorded in RESULT/body.json: 'dataset' = the "

@@ -105,7 +105,8 @@ class DepthOptions(Options):
         3): walk .045 / .040 / .039, salsa .068 / .058 / .060, demo (15 fps) .098 / .083 /
         .066, but hop .063 / .079 / .233: a margin trades fast turns for steadier slow ones
     init_headings, init_keep : ``--init auto``: headings at which each library pose is placed
-        and scored, and how many of the best are hill-climbed (see :meth:`auto_init`)
+        and scored, and how many of the best are hill-climbed, each also turned round (see
+        :meth:`auto_init`)
     init_depth_offset : metres; ``--init auto`` places the body's volume centroid this far
         behind the centroid of the seen (front) surface, about half a torso's depth
     """
@@ -134,7 +135,7 @@ class DepthOptions(Options):
     heading_hypotheses: int = 3
     heading_margin: float = 0.0
     init_headings: int = 12
-    init_keep: int = 3
+    init_keep: int = 2
     init_depth_offset: float = 0.1
 
     def problems(self):
@@ -331,13 +332,18 @@ class HillClimbDepthTracker(Tracker):
         (:func:`gltrack.body.poses.canonical_poses`) is placed at ``init_headings`` headings
         with its volume centroid ``init_depth_offset`` behind the centroid of the foreground
         points (the camera sees the front surface) and scored by the depth cost; each of the
-        ``init_keep`` best is hill-climbed on its own without the motion prior (three
+        ``init_keep`` best, and each turned round by 180 degrees, is hill-climbed on its own
+        without the motion prior (three
         coarse-to-fine passes with a grid of 6 sigmas, halved each pass, the root +-0.3 m, each
         with two extra limb sweeps) and the lowest cost starts the tracker.
 
         Why the extra limb sweeps: seen side-on, the body at the right heading got stuck with an
         arm behind the torso (cost 9.5 against 4.7 for the mirror-image heading, 290 mm off);
         with the sweeps it reached 4.3 and won (34 mm).
+
+        Seen face-on by one camera, a body turned round fits about as well (only the feet and
+        the bent knees tell them apart): on the test walk the best 3 placed poses all faced
+        away, and the start was mirrored until the turned-round twins were climbed too.
 
         Raises
         ------
@@ -359,6 +365,11 @@ class HillClimbDepthTracker(Tracker):
         self.set_view(z, None, margin=max(o.crop_margin, 0.5))  # framed on the foreground
         cost = self.objective(P[0], prior_weight=0.0)
         seeds = P[np.argsort(cost(P))[:o.init_keep]]
+        # each seed also turned round: seen face-on, the placed poses' ranking hardly tells a
+        # body from its turned-round twin (on the test walk all of the best 3 faced away)
+        twins = seeds.copy()
+        twins[:, d.index("pelvis_ry")] += np.pi
+        seeds = np.concatenate([seeds, d.validate(twins)])
         best, best_cost = None, np.inf
         for x in seeds:
             wide = 6.0 * self.sigma
@@ -368,6 +379,7 @@ class HillClimbDepthTracker(Tracker):
                 x, wide = res.x, wide * 0.5
             if res.cost < best_cost:
                 best, best_cost = x, float(res.cost)
+            log.debug("auto init candidate: heading %.2f cost %.4g", x[3], res.cost)
         log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds), best_cost)
         return best
 

@@ -21,6 +21,7 @@ from gltrack.data.results import ResultsWriter
 from gltrack.export.bvh import write_params_bvh
 
 from .bodies import resolve_body
+from .base import NoPersonError
 from .registry import method as lookup
 
 log = logging.getLogger(__name__)
@@ -54,16 +55,29 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
     return arr
 
 
-def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "groundtruth",
+def _first_pose(init, dataset, body, tracker, start: int, stop: int, max_search: int):
+    """(frame, pose) to start from; an automatic start that finds no person tries the next
+    frames (up to ``max_search`` of them) with a warning, then gives up naming the range."""
+    for f in range(start, min(stop, start + max(int(max_search), 1))):
+        try:
+            return f, initial_pose(init, dataset, body, tracker, f)
+        except NoPersonError as exc:
+            log.warning("%s; trying frame %d", exc, f + 1)
+    raise ValueError(f"{dataset.path}: no person found to start from in frames {start}.."
+                     f"{min(stop, start + max(int(max_search), 1)) - 1} (--init {init})")
+
+
+def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
-          hooks=(), body: str = "dataset") -> dict:
+          hooks=(), body: str = "dataset", max_search: int = 30) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
     ----------
     options : dict, tracker options (``--config`` table); unknown keys are errors
-    init : "groundtruth", "auto" or a pose file
+    init : "auto" (find the body from nothing, default), "groundtruth" (the true first pose:
+        an oracle, for ablations) or a pose file
     resume : continue an interrupted run in ``out``
     frames : (start, stop), optional sub-range of the dataset's frames
     preset : DOF preset overriding the body record's
@@ -71,6 +85,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         (:func:`gltrack.track.bodies.resolve_body`); recorded in ``out/body.json``
     progress : show a tqdm progress bar
     hooks : callables ``hook(tracker, frame)`` run before each frame is tracked (fault injection)
+    max_search : with ``init="auto"``, frames tried from the first one when a frame shows no
+        person (each tried frame logs a warning; tracking starts at the first with a person)
 
     Returns
     -------
@@ -102,11 +118,11 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             tracker.start(first - 1, np.asarray(last["params"]))
             log.info("resuming after frame %d", first - 1)
         else:
-            first = start
             t0 = time.perf_counter()
-            x0 = initial_pose(init, ds, body, tracker, start)
-            tracker.start(start, x0)
-            log.info("initialised (%s) in %.2f s", init, time.perf_counter() - t0)
+            first, x0 = _first_pose(init, ds, body, tracker, start, stop, max_search)
+            tracker.start(first, x0)
+            log.info("initialised (%s) at frame %d in %.2f s", init, first,
+                     time.perf_counter() - t0)
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
                    disable=not progress, leave=False)
         for f in bar:
