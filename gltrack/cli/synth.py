@@ -16,6 +16,7 @@ def add_arguments(p):
     from gltrack.body.dofs import PRESETS
     from gltrack.data.sim_depth import NOISE_LEVELS
     from gltrack.data.simulate import DISTRACTORS, OCCLUDERS
+    from gltrack.data.subject import GIRTH_SCALE_RANGE
 
     p.add_argument("--motion", required=True, metavar="F.bvh", help="BVH motion clip")
     p.add_argument("--rig", required=True, choices=["depth", "multiview"], help="sensor rig")
@@ -37,6 +38,14 @@ def add_arguments(p):
     p.add_argument("--noise", default="default", choices=list(NOISE_LEVELS),
                    help="scale of every sensor effect")
     p.add_argument("--preset", default="full", choices=list(PRESETS), help="DOF preset")
+    p.add_argument("--mesh", default=None, metavar="SUBJECT.glb",
+                   help="draw the subject with this rigged glTF body (joints named as in the "
+                        "CMU skeleton, e.g. ../shared/meshes/makehuman_cmu_male1591.glb), "
+                        "fitted to the clip's skeleton, instead of the tracker's own mesh; "
+                        "ground truth is unchanged")
+    p.add_argument("--girth-scale", type=float, default=1.0, metavar="S",
+                   help="subject thinner (< 1) or stouter (> 1) than the default body, within "
+                        f"{GIRTH_SCALE_RANGE[0]:g}..{GIRTH_SCALE_RANGE[1]:g}")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
 
@@ -80,12 +89,20 @@ def run(args):
             raise UsageError("--cameras applies to the multiview rig only")
         if not 1 <= args.cameras <= 64:
             raise UsageError(f"--cameras must be within 1..64, got {args.cameras}")
+    from gltrack.data.subject import girth_scale_problem
+
+    bad = girth_scale_problem(args.girth_scale)
+    if bad:
+        raise UsageError(f"--girth-scale {bad}")
     out = Path(args.out)
     if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
         raise UsageError(f"{out}: exists and is not empty (use --overwrite to replace it)")
     motion = Path(args.motion)
     if not motion.is_file():
         raise ValueError(f"{motion}: no such file")
+    subject = Path(args.mesh) if args.mesh is not None else None
+    if subject is not None and not subject.is_file():
+        raise ValueError(f"--mesh {subject}: no such file")
 
     from gltrack.motion.bvh import read_bvh
     from gltrack.motion.retarget import load_motion
@@ -102,7 +119,8 @@ def run(args):
 
     path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
                       size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
-                      distractor=args.distractor, noise=args.noise,
+                      distractor=args.distractor, noise=args.noise, subject=subject,
+                      girth_scale=args.girth_scale,
                       progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
     print(f"wrote {path} ({len(params)} frames at {args.fps:g} fps, rig {args.rig})")
     return 0

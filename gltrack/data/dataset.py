@@ -582,9 +582,12 @@ class DatasetWriter:
         JSON-serialisable body parameters stored in ``meta.json``.
     overwrite : bool
         Replace an existing non-empty ``path``; otherwise that raises FileExistsError.
+    meta : dict, optional
+        More JSON-serialisable top-level fields of ``meta.json`` (e.g. the simulator's
+        ``"subject"``), written after the standard ones, which they may not replace.
     """
 
-    def __init__(self, path, rig, fps, cameras, body=None, overwrite=False):
+    def __init__(self, path, rig, fps, cameras, body=None, overwrite=False, meta=None):
         self.path = Path(path)
         if rig not in RIGS:
             raise ValueError(f"rig must be one of {RIGS}, got {rig!r}")
@@ -600,6 +603,12 @@ class DatasetWriter:
             raise ValueError("rig 'depth' needs a camera of kind 'depth'")
         self.rig, self.fps, self.body = rig, float(fps), dict(body or {})
         json.dumps(self.body)  # fail now, not at close(), on a body that JSON cannot hold
+        self.extra_meta = dict(meta or {})
+        clash = sorted(set(self.extra_meta) & {"format", "version", "fps", "frames", "rig",
+                                               "body"})
+        if clash:
+            raise ValueError(f"meta may not replace the standard meta.json fields {clash}")
+        json.dumps(self.extra_meta)
         if self.path.exists() and not overwrite and (not self.path.is_dir()
                                                      or any(self.path.iterdir())):
             raise FileExistsError(f"{self.path}: exists and is not empty (use overwrite)")
@@ -754,7 +763,7 @@ class DatasetWriter:
             save_calibration(self.tmp / CALIBRATION, self.cameras)
             fps = int(self.fps) if self.fps.is_integer() else self.fps
             meta = {"format": FORMAT, "version": VERSION, "fps": fps, "frames": n,
-                    "rig": self.rig, "body": self.body}
+                    "rig": self.rig, "body": self.body, **self.extra_meta}
             (self.tmp / META).write_text(json.dumps(meta, indent=1) + "\n")
             self._replace_target()
         except BaseException:

@@ -23,6 +23,14 @@ Rigs
     per camera in ``camN_background/``, ``camN_mask/`` from MOG2 background subtraction trained on
     those frames, and ``camN_gtmask/`` (visible body pixels, diagnosis only).
 
+Subject: by default the body is drawn with the tracker's own procedural mesh. ``subject=FILE``
+(``--mesh``) draws a rigged glTF body fitted to the motion's skeleton instead, and
+``girth_scale`` (``--girth-scale``) makes the subject thinner or stouter
+(:mod:`gltrack.data.subject`). Both change the subject's surface only: cameras, room, props,
+noise and the ground truth (joints, and markers of the tracker's body) stay those of the default
+run with the same seed. ``meta.json`` then carries a ``"subject"`` record
+(``{"mesh": ..., "girth_scale": ...}``); without it the subject was the default one.
+
 Options: ``occluder="table"`` puts a table between cam0 and the subject (legs hidden in that
 view); its convex image outline per camera goes to ``environment.json``. ``distractor="box"``
 adds a box sliding beside the subject: in the images and the background-subtraction masks, not
@@ -60,6 +68,7 @@ from gltrack.data import scene as scn
 from gltrack.data.dataset import RIGS, DatasetWriter
 from gltrack.data.sim_depth import NOISE_LEVELS, TofNoise, apply_tof_noise
 from gltrack.data.sim_multiview import ColourNoise, mask_model, sensor_image
+from gltrack.data.subject import subject_mesh, subject_record, top_of_head
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +104,7 @@ GARMENT = {"head": "skin", "torso": "shirt", "l_upper_arm": "shirt", "r_upper_ar
            "l_hand": "skin", "r_hand": "skin", "l_foot": "shoes", "r_foot": "shoes"}
 
 
-def clothing_colours(mesh, skeleton, rng: np.random.Generator):
+def clothing_colours(mesh, skeleton, rng: np.random.Generator, head_end=None):
     """Per-vertex colours of a dressed body.
 
     Parameters
@@ -103,6 +112,9 @@ def clothing_colours(mesh, skeleton, rng: np.random.Generator):
     mesh : BodyMesh (rest pose of ``skeleton``)
     skeleton : Skeleton
     rng : numpy.random.Generator, picks the garment colours and a faint fabric texture
+    head_end : (3,) float, optional, head joint -> top of the head (metres) for the hair line;
+        default the skeleton's head end site (or 0.12 stature up), which the procedural head
+        is built from
 
     Returns
     -------
@@ -114,8 +126,12 @@ def clothing_colours(mesh, skeleton, rng: np.random.Generator):
     names = np.array([GARMENT[p] for p in PARTS])[mesh.part]
     head = skeleton.index("head")
     p_head = skeleton.rest_positions()[head]
-    top = skeleton.ends[head] if np.linalg.norm(skeleton.ends[head]) > 1e-6 else \
-        _UP * 0.12 * skeleton.height()
+    if head_end is not None:
+        top = np.asarray(head_end, dtype=np.float64)
+    elif np.linalg.norm(skeleton.ends[head]) > 1e-6:
+        top = skeleton.ends[head]
+    else:
+        top = _UP * 0.12 * skeleton.height()
     rel = mesh.vertices.astype(np.float64) - p_head
     along = rel @ top / (top @ top)
     back = rel[:, 2] < -0.01
@@ -472,7 +488,8 @@ def _check_args(params, dofs, fps, rig, seed, size, n_cameras, occluder, distrac
 def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=None,
                n_cameras: int = 4, occluder: str | None = None, distractor: str | None = None,
                noise: str = "default", mesh=None, progress: bool = True,
-               overwrite: bool = False, lod: int = 1) -> Path:
+               overwrite: bool = False, lod: int = 1, subject=None,
+               girth_scale: float = 1.0) -> Path:
     """Render a motion into a dataset folder (see the module docstring for what is written).
 
     Parameters
@@ -493,6 +510,10 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     progress : bool, tqdm bar (only shown on a terminal)
     overwrite : bool, replace a non-empty ``out``
     lod : int, level of detail of the default mesh
+    subject : path, optional, a rigged glTF body drawn instead of the body's mesh
+        (:func:`gltrack.data.subject.fit_gltf_subject`); ground truth is unchanged
+    girth_scale : float, within :data:`gltrack.data.subject.GIRTH_SCALE_RANGE`; the drawn
+        subject's girths relative to the default body (1 = unchanged)
 
     Returns
     -------
@@ -501,7 +522,9 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     Raises
     ------
     ValueError
-        Bad arguments.
+        Bad arguments, or a glTF ``subject`` that cannot be read or mapped (naming the file).
+    FileNotFoundError
+        ``subject`` does not exist.
     FileExistsError
         ``out`` exists, is not empty and ``overwrite`` is False.
     """
@@ -517,6 +540,10 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     custom_mesh = mesh is not None
     body = BodyModel.build(skeleton, dofs.preset, lod, mesh=mesh)
     mesh = body.mesh
+    # what the cameras see; the layout and the ground truth stay the body's
+    drawn = subject_mesh(skeleton, mesh, gltf=subject, girth_scale=girth_scale, lod=lod,
+                         custom=custom_mesh)
+    subject_rec = subject_record(subject, girth_scale)
     kin = Kinematics(skeleton, dofs)
     P = dofs.validate(params)
     T = len(P)
@@ -530,7 +557,9 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
             cameras[0].center * [1, 0, 1] - layout.table_centre * [1, 0, 1]), layout.floor_y)
         pieces.append(table)
     dist_piece = scn.make_distractor() if layout.distractor_centres is not None else None
-    colours, garments = clothing_colours(mesh, skeleton, _rng(seed, "clothes"))
+    colours, garments = clothing_colours(
+        drawn, skeleton, _rng(seed, "clothes"),
+        head_end=None if subject is None else top_of_head(drawn, skeleton))
 
     meta_body = body_to_meta(skeleton, dofs.preset, lod)
     # a tracker rebuilding the body from meta.json gets the procedural mesh only
@@ -540,18 +569,19 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     markers = kin.transform_points(pose, body.markers.bone, body.markers.local)
 
     out = Path(out)
-    writer = DatasetWriter(out, rig, fps, cameras, body=meta_body, overwrite=overwrite)
+    writer = DatasetWriter(out, rig, fps, cameras, body=meta_body, overwrite=overwrite,
+                           meta=None if subject_rec is None else {"subject": subject_rec})
     renderer = None
     try:
         # key light high above and beside cam0, so shadows fall visibly onto the floor
         to_cam0 = _unit((cameras[0].center - layout.centre) * [1, 0, 1])
         key_light = to_cam0 + 0.7 * np.cross(_UP, to_cam0) + 1.5 * _UP
-        renderer = _Renderer(cameras, pieces, mesh.faces, colours, dist_piece, key_light)
+        renderer = _Renderer(cameras, pieces, drawn.faces, colours, dist_piece, key_light)
         if rig == "depth":
-            _depth_frames(writer, renderer, cameras[0], mesh, kin, P, layout, noise, seed,
+            _depth_frames(writer, renderer, cameras[0], drawn, kin, P, layout, noise, seed,
                           tqdm, progress)
         else:
-            _multiview_frames(writer, renderer, cameras, mesh, kin, P, layout, noise, seed,
+            _multiview_frames(writer, renderer, cameras, drawn, kin, P, layout, noise, seed,
                               tqdm, progress)
         if corners is not None:
             polys = table_polygons(corners, cameras)
@@ -568,6 +598,8 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
                     "noise": noise, "occluder": occluder, "distractor": distractor,
                     "size": list(size), "cameras": len(cameras), "frames": T, "fps": fps,
                     "floor_y": layout.floor_y, "garments": garments}
+        if subject_rec is not None:
+            settings["subject"] = subject_rec
         (writer.tmp / "synth.json").write_text(json.dumps(settings, indent=1) + "\n")
     except BaseException:
         writer.abort()
