@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gltrack.cli import main
+from gltrack.data.dataset import Dataset
 from gltrack.data.results import load_results
 from gltrack.eval.metrics import evaluate
 
@@ -169,3 +170,52 @@ def test_auto_start_waits_for_the_person(tmp_path, capsys, caplog):
                str(tmp_path / "e")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and "no person found" in err[-1] and "frames 0..3" in err[-1]
+
+
+def test_two_modes_keeps_the_turned_round_twin():
+    from gltrack.track.base import two_modes
+
+    X = np.zeros((4, 6))
+    X[:, 3] = [0.1, 3.2, 0.2, -3.0]
+    best, twin = two_modes(X, [2.0, 3.0, 1.0, 2.5], 3)
+    assert best[3] == 0.2 and twin[3] == -3.0
+    assert len(two_modes(X[[0, 2]], [2.0, 1.0], 3)) == 1
+
+
+def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog):
+    """Face-on, one depth frame fits the body and its turned-round twin about equally; the
+    runner tracks both for a few frames and keeps the one that explains them: the walk is
+    tracked the right way round."""
+    import logging
+
+    from gltrack.track.runner import track
+
+    make_depth_dataset(tmp_path / "ds", n=12)
+    gt = Dataset.open(tmp_path / "ds").groundtruth()
+    with caplog.at_level(logging.INFO, logger="gltrack.track.runner"):
+        track(tmp_path / "ds", "hc", tmp_path / "res", progress=False, decide_frames=6)
+    res = load_results(tmp_path / "res")
+    err = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean()
+    assert err < 0.06, err
+    assert "start hypotheses tracked over 6 frames" in caplog.text
+
+
+def test_decision_keeps_the_hypothesis_that_explains_the_frames():
+    """The runner's choice between start hypotheses: lower mean score wins, every frame is
+    stepped (hooks first) and kept for writing."""
+    from gltrack.track.base import FrameEstimate
+    from gltrack.track.runner import _decide
+
+    class Scripted:  # a stand-in with scripted per-frame scores; no GL involved
+        def __init__(self, scores):
+            self.scores, self.seen = scores, []
+
+        def step(self, f):
+            self.seen.append(f)
+            return FrameEstimate(np.zeros(3), self.scores[f], 1)
+
+    a, b = Scripted([5.0, 4.0, 6.0]), Scripted([5.5, 3.0, 4.0])
+    hooked = []
+    k, runs = _decide([a, b], range(3), [lambda tr, f: hooked.append(f)])
+    assert k == 1 and a.seen == b.seen == [0, 1, 2] and hooked == [0, 1, 2, 0, 1, 2]
+    assert [e.score for e, _ in runs[1]] == [5.5, 3.0, 4.0]

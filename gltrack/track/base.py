@@ -10,6 +10,16 @@ class NoPersonError(ValueError):
     """An automatic start found no person in the frame (the runner then tries later frames)."""
 
 
+def two_modes(X, cost, yaw: int) -> list[np.ndarray]:
+    """The lowest-cost pose of ``X`` (N, D) and, when there is one, the lowest-cost pose whose
+    heading (DOF ``yaw``) differs from it by more than 90 degrees: the turned-round twin."""
+    X, cost = np.asarray(X, dtype=np.float64), np.asarray(cost, dtype=np.float64)
+    order = np.argsort(cost)
+    best = X[order[0]]
+    turned = np.abs(np.angle(np.exp(1j * (X[order, yaw] - best[yaw])))) > np.pi / 2
+    return [best] + ([X[order[np.argmax(turned)]]] if turned.any() else [])
+
+
 @dataclass
 class FrameEstimate:
     """A tracker's answer for one frame.
@@ -56,6 +66,16 @@ class Tracker:
         raise NotImplementedError
 
     def auto_init(self, frame: int) -> np.ndarray:
+        """(D,) the pose that best explains ``frame``, found without any pose given."""
+        return self.start_hypotheses(frame)[0]
+
+    def start_hypotheses(self, frame: int) -> list[np.ndarray]:
+        """Poses (D,) that explain ``frame`` about equally well, best first.
+
+        Trackers whose evidence cannot tell a body from its turned-round twin on one frame
+        return both; the runner then tracks each for a few frames and keeps the one that
+        explains them better (:func:`gltrack.track.runner.track`, ``decide_frames``).
+        """
         raise ValueError(f"method {self.method!r} has no automatic initialisation; "
                          "use --init groundtruth or --init POSE.npy")
 

@@ -150,6 +150,9 @@ class CondensationTracker(Tracker):
         self.est = None
 
     # -- initialisation -----------------------------------------------------------------------
+    def start_hypotheses(self, frame):
+        return [self.auto_init(frame)]
+
     def auto_init(self, frame):
         """A standing pose at ``headings`` headings on the voxels' centroid; best KL wins."""
         ev = self.evidence

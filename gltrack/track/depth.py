@@ -54,7 +54,7 @@ from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb
 from gltrack.sample.partitions import default_partitions, hill_climb_order
 
-from .base import FrameEstimate, NoPersonError, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker, two_modes
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -325,7 +325,7 @@ class HillClimbDepthTracker(Tracker):
         self.v = x - self.x
         self.x = x
 
-    def auto_init(self, frame):
+    def start_hypotheses(self, frame):
         """Find the body in ``frame`` without any pose given.
 
         A global search, then the tracker's own search: every pose of the library
@@ -370,18 +370,18 @@ class HillClimbDepthTracker(Tracker):
         twins = seeds.copy()
         twins[:, d.index("pelvis_ry")] += np.pi
         seeds = np.concatenate([seeds, d.validate(twins)])
-        best, best_cost = None, np.inf
+        X, costs = [], []
         for x in seeds:
             wide = 6.0 * self.sigma
             wide[:3] = 0.3
             for _ in range(3):  # no prior: there is no motion to predict from yet
                 res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0)
                 x, wide = res.x, wide * 0.5
-            if res.cost < best_cost:
-                best, best_cost = x, float(res.cost)
-            log.debug("auto init candidate: heading %.2f cost %.4g", x[3], res.cost)
-        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds), best_cost)
-        return best
+            X.append(x)
+            costs.append(float(res.cost))
+        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
+                 min(costs))
+        return two_modes(X, costs, d.index("pelvis_ry"))
 
     def close(self):
         self.likelihood.release()

@@ -75,7 +75,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 
-from .base import FrameEstimate, NoPersonError, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker, two_modes
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -320,7 +320,7 @@ class MultiviewTracker(Tracker):
         return cost_weights(cost, self.area / o.sharpness).W
 
     # -- automatic start ----------------------------------------------------------------
-    def auto_init(self, frame):
+    def start_hypotheses(self, frame):
         """Find the body in ``frame`` without any pose given.
 
         A global search, then the filter's own kind of search: every pose of the library
@@ -381,7 +381,7 @@ class MultiviewTracker(Tracker):
         e_final = self.likelihood.scores(final)[0]
         log.info("auto init: %d placed poses (best silhouette error %.0f px), refined to %.0f px",
                  len(P), e_s.min(), e_final.min())
-        return final[int(np.argmin(e_final))]
+        return two_modes(final, e_final, d.index("pelvis_ry"))
 
     # -- tracking -------------------------------------------------------------------------
     def start(self, frame, params, velocity=None):

@@ -26,6 +26,14 @@ from .registry import method as lookup
 
 log = logging.getLogger(__name__)
 
+def initial_poses(init, dataset, body, tracker, start: int) -> list[np.ndarray]:
+    """The poses (D,) to start from, best first: one for ``"groundtruth"`` or a pose file, the
+    tracker's start hypotheses for ``"auto"``."""
+    if init == "auto":
+        return tracker.start_hypotheses(start)
+    return [initial_pose(init, dataset, body, tracker, start)]
+
+
 def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
     """The pose to start from: ``"groundtruth"``, ``"auto"`` or a path to a .npy/.npz pose file."""
     if init == "groundtruth":
@@ -56,21 +64,42 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
 
 
 def _first_pose(init, dataset, body, tracker, start: int, stop: int, max_search: int):
-    """(frame, pose) to start from; an automatic start that finds no person tries the next
+    """(frame, poses) to start from; an automatic start that finds no person tries the next
     frames (up to ``max_search`` of them) with a warning, then gives up naming the range."""
     for f in range(start, min(stop, start + max(int(max_search), 1))):
         try:
-            return f, initial_pose(init, dataset, body, tracker, f)
+            return f, initial_poses(init, dataset, body, tracker, f)
         except NoPersonError as exc:
             log.warning("%s; trying frame %d", exc, f + 1)
     raise ValueError(f"{dataset.path}: no person found to start from in frames {start}.."
                      f"{min(stop, start + max(int(max_search), 1)) - 1} (--init {init})")
 
 
+def _step(tracker, f: int, hooks):
+    """(estimate, seconds) of frame ``f``, the hooks run first."""
+    for hook in hooks:
+        hook(tracker, f)
+    t0 = time.perf_counter()
+    est = tracker.step(f)
+    return est, time.perf_counter() - t0
+
+
+def _decide(trackers, frames, hooks):
+    """Track ``frames`` with each started tracker; the index of the one whose mean score (lower
+    = better) is lowest, and every tracker's (estimate, seconds) per frame."""
+    runs = [[_step(tr, f, hooks) for f in frames] for tr in trackers]
+    means = [float(np.nanmean([e.score for e, _ in run])) for run in runs]
+    k = int(np.argmin(means))
+    log.info("start hypotheses tracked over %d frames: mean scores %s; kept %d",
+             len(runs[0]), ", ".join(f"{m:.4g}" for m in means), k)
+    return k, runs
+
+
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
-          hooks=(), body: str = "dataset", max_search: int = 30) -> dict:
+          hooks=(), body: str = "dataset", max_search: int = 30,
+          decide_frames: int = 10) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
@@ -87,6 +116,10 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     hooks : callables ``hook(tracker, frame)`` run before each frame is tracked (fault injection)
     max_search : with ``init="auto"``, frames tried from the first one when a frame shows no
         person (each tried frame logs a warning; tracking starts at the first with a person)
+    decide_frames : with ``init="auto"`` and a tracker that returns two start hypotheses (a
+        body and its turned-round twin fit one frame about equally well), each is tracked this
+        many frames and the one with the lower mean score is kept (its frames are the ones
+        written); 0 keeps the first hypothesis
 
     Returns
     -------
@@ -110,6 +143,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
                            resume=resume, overwrite=overwrite, body=body_rec)
+    decided = {}  # frames already tracked while deciding between start hypotheses
     try:
         done = writer.done_frames
         if resume and done:
@@ -119,18 +153,32 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             log.info("resuming after frame %d", first - 1)
         else:
             t0 = time.perf_counter()
-            first, x0 = _first_pose(init, ds, body, tracker, start, stop, max_search)
-            tracker.start(first, x0)
+            first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search)
+            tracker.start(first, starts[0])
+            if len(starts) > 1 and decide_frames > 0:
+                # the twin gets its own tracker and a generator derived from the seed, so the
+                # choice and what follows are reproducible
+                twins = [m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k]))
+                         for k in range(1, len(starts))]
+                for tw, x in zip(twins, starts[1:]):
+                    tw.start(first, x)
+                everyone = [tracker, *twins]
+                try:
+                    k, runs = _decide(everyone, range(first, min(stop, first + decide_frames)),
+                                      hooks)
+                except BaseException:
+                    for tw in twins:
+                        tw.close()
+                    raise
+                tracker, decided = everyone[k], dict(zip(range(first, stop), runs[k]))
+                for other in everyone[:k] + everyone[k + 1:]:
+                    other.close()
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
                    disable=not progress, leave=False)
         for f in bar:
-            for hook in hooks:
-                hook(tracker, f)
-            t0 = time.perf_counter()
-            est = tracker.step(f)
-            secs = time.perf_counter() - t0
+            est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
             writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
                           est.score, est.evaluations, secs, info=est.info)

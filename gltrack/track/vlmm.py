@@ -188,6 +188,9 @@ class VlmmTracker(Tracker):
             self.evidence.fit(P[self.evidence.rank(P, self.opt.fit_inits)])
         return P, k, self.costs(frame, P)
 
+    def start_hypotheses(self, frame):
+        return [self.auto_init(frame)]
+
     def auto_init(self, frame):
         self._load(frame)
         if self.evidence.empty:
