@@ -95,6 +95,30 @@ def _decide(trackers, frames, hooks):
     return k, runs
 
 
+def _choose_start(tracker, make, starts, first: int, frames, hooks):
+    """Start ``tracker`` and one new tracker (``make(k)``) per further start hypothesis at
+    ``first``, track ``frames`` with all of them and keep the best (the others are closed).
+
+    Returns
+    -------
+    tracker : the kept tracker
+    decided : dict frame -> (estimate, seconds) of the kept tracker's frames
+    """
+    others = [make(k) for k in range(1, len(starts))]
+    everyone = [tracker, *others]
+    try:
+        for tr, x in zip(others, starts[1:]):
+            tr.start(first, x)
+        k, runs = _decide(everyone, frames, hooks)
+    except BaseException:
+        for tr in others:
+            tr.close()
+        raise
+    for other in everyone[:k] + everyone[k + 1:]:
+        other.close()
+    return everyone[k], dict(zip(frames, runs[k]))
+
+
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
@@ -156,23 +180,12 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search)
             tracker.start(first, starts[0])
             if len(starts) > 1 and decide_frames > 0:
-                # the twin gets its own tracker and a generator derived from the seed, so the
-                # choice and what follows are reproducible
-                twins = [m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k]))
-                         for k in range(1, len(starts))]
-                for tw, x in zip(twins, starts[1:]):
-                    tw.start(first, x)
-                everyone = [tracker, *twins]
-                try:
-                    k, runs = _decide(everyone, range(first, min(stop, first + decide_frames)),
-                                      hooks)
-                except BaseException:
-                    for tw in twins:
-                        tw.close()
-                    raise
-                tracker, decided = everyone[k], dict(zip(range(first, stop), runs[k]))
-                for other in everyone[:k] + everyone[k + 1:]:
-                    other.close()
+                # each other hypothesis gets its own tracker and a generator derived from the
+                # seed, so the choice and what follows are reproducible
+                make = (lambda k: m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k])))
+                tracker, decided = _choose_start(tracker, make, starts, first,
+                                                 range(first, min(stop, first + decide_frames)),
+                                                 hooks)
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
