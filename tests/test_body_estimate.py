@@ -16,8 +16,8 @@ from gltrack.body.skeleton import default_skeleton
 from gltrack.camera import depth_camera_sr4000
 from gltrack.data.dataset import Dataset, DatasetWriter
 from gltrack.render import reference as ref
-from gltrack.track.body_estimate import (CANONICAL_BONES, Proportions, StretchedTemplate,
-                                         body_error, bone_lengths, estimate_body)
+from gltrack.body.measure import CANONICAL_BONES, body_error, bone_lengths
+from gltrack.track.body_estimate import Proportions, StretchedTemplate, estimate_body
 
 from trackdata import smooth_motion
 

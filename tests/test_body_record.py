@@ -130,7 +130,7 @@ def runs(tmp_path_factory):
     short.mkdir()
     save_body_record(short, BodyModel.build(default_skeleton(1.6)), "file")
     ds, res = str(root / "ds"), root / "res"
-    assert main(["-q", "track", ds, "--method", "hc", "--out", str(res)]) == 0
+    assert main(["-q", "track", "--body", "dataset", ds, "--method", "hc", "--out", str(res)]) == 0
     assert main(["-q", "track", ds, "--method", "hc", "--out", str(root / "res16"),
                  "--body", str(short / "body.json")]) == 0
     return {"root": root, "ds": root / "ds", "res": res, "res16": root / "res16",
@@ -168,7 +168,7 @@ def test_body_file_is_used_and_recorded(runs, gl_ctx):
 
 def test_export_and_render_of_a_dof38_result_need_no_dof(runs, gl_ctx, capsys):
     res = runs["root"] / "res38"
-    assert main(["-q", "track", str(runs["ds"]), "--method", "hc", "--out", str(res), "--dof", "38",
+    assert main(["-q", "track", "--body", "dataset", str(runs["ds"]), "--method", "hc", "--out", str(res), "--dof", "38",
                  "--init", "auto", "--frames", "0:2"]) == 0
     assert main(["export", str(res), "--format", "json"]) == 0
     doc = json.loads((res / "poses.json").read_text())
@@ -225,6 +225,13 @@ def test_resume_with_another_body_is_refused(runs, tmp_path, capsys):
     assert main(["-q", "track", ds, "--method", "hc", "--out", str(out), "--frames", "0:3",
                  "--resume", "--body", str(out / "body.json")]) == 0
     assert load_results(out)["params"].shape[0] == 3
+    # the default (--body estimate) resumes with the body estimated when the run began
+    estimated = (out / "body.json").read_bytes()
+    assert json.loads(estimated)["source"] == "estimate"
+    assert main(["-q", "track", ds, "--method", "hc", "--out", str(out), "--frames", "0:4",
+                 "--resume"]) == 0
+    assert (out / "body.json").read_bytes() == estimated
+    assert load_results(out)["params"].shape[0] == 4
 
 
 def test_body_json_is_written_before_the_first_frame(runs, tmp_path, gl_ctx):

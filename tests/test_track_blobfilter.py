@@ -50,7 +50,7 @@ def test_cli_tracking_follows_the_body(setup, method, flags, evals):
     cfg = root / "depth2.toml"
     cfg.write_text("max_depth = 2\nestimate = \"mean\"\n")
     # tracking from the true first pose (automatic starts are tested on their own)
-    rc = main(["-q", "track", str(root / "glide"), "--method", method, "--out", str(out),
+    rc = main(["-q", "track", "--body", "dataset", str(root / "glide"), "--method", method, "--out", str(out),
                "--config", str(cfg), "--seed", "2", "--init", "groundtruth", *flags])
     assert rc == 0
     err, fixed = _errors(out, body, glide)

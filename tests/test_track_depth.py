@@ -59,7 +59,7 @@ def test_hc_tracks_and_beats_a_frozen_pose(depth_ds, tmp_path):
 
 def test_auto_init_finds_the_body(depth_ds, tmp_path):
     out = tmp_path / "auto"
-    assert main(["-q", "track", str(depth_ds), "--method", "hc", "--out", str(out), "--init", "auto",
+    assert main(["-q", "track", "--body", "dataset", str(depth_ds), "--method", "hc", "--out", str(out), "--init", "auto",
                  "--frames", "0:3"]) == 0
     m = _metrics(out, depth_ds)
     assert m["frames"] == 3
@@ -81,7 +81,7 @@ def test_resume_after_kill_loses_no_frame(tmp_path):
     ds = tmp_path / "ds"
     make_depth_dataset(ds, n=40)
     out = tmp_path / "res"
-    cmd = [sys.executable, "-m", "gltrack", "-q", "track", str(ds), "--method", "hc", "--out", str(out)]
+    cmd = [sys.executable, "-m", "gltrack", "-q", "track", "--body", "dataset", str(ds), "--method", "hc", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     log = out / "frames.jsonl"
     deadline = time.time() + 120
@@ -156,7 +156,7 @@ def test_auto_start_waits_for_the_person(tmp_path, capsys, caplog):
             for f in range(4):
                 w.write_depth(f, 0, z[f] if f >= first else np.zeros_like(z[f]))
     out = tmp_path / "res"
-    assert main(["-q", "track", str(tmp_path / "late"), "--method", "hc", "--out", str(out)]) == 0
+    assert main(["-q", "track", "--body", "dataset", str(tmp_path / "late"), "--method", "hc", "--out", str(out)]) == 0
     assert "frame 0: too few foreground" in caplog.text and "trying frame 2" in caplog.text
     res = load_results(out)
     assert list(res["frame"]) == [2, 3]
@@ -166,7 +166,7 @@ def test_auto_start_waits_for_the_person(tmp_path, capsys, caplog):
                                                           "neck", "head")]
     J = body.joints(P[2:])
     assert np.linalg.norm(res["joints"][:, trunk] - J[:, trunk], axis=2).mean() < 0.05
-    rc = main(["-q", "track", str(tmp_path / "empty"), "--method", "hc", "--out",
+    rc = main(["-q", "track", "--body", "dataset", str(tmp_path / "empty"), "--method", "hc", "--out",
                str(tmp_path / "e")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and "no person found" in err[-1] and "frames 0..3" in err[-1]
@@ -193,7 +193,7 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog):
     make_depth_dataset(tmp_path / "ds", n=12)
     gt = Dataset.open(tmp_path / "ds").groundtruth()
     with caplog.at_level(logging.INFO, logger="gltrack.track.runner"):
-        track(tmp_path / "ds", "hc", tmp_path / "res", progress=False, decide_frames=6)
+        track(tmp_path / "ds", "hc", tmp_path / "res", body="dataset", progress=False, decide_frames=6)
     res = load_results(tmp_path / "res")
     err = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean()
     assert err < 0.06, err

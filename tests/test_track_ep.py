@@ -39,7 +39,7 @@ def _track(ds, method, out, tmp_path, **opts):
     """Track through the CLI with ``opts`` as the --config table."""
     cfg = tmp_path / f"{method.replace('+', '_')}.toml"
     cfg.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in opts.items()))
-    assert main(["-q", "track", str(ds), "--method", method, "--out", str(out),
+    assert main(["-q", "track", "--body", "dataset", str(ds), "--method", method, "--out", str(out),
                  "--config", str(cfg)]) == 0
     return out
 
@@ -49,7 +49,7 @@ def _track_with_fault(ds, method, out):
     from gltrack.bench.faults import limb_fault
     from gltrack.track.runner import track
 
-    track(ds, method, out, progress=False, hooks=[limb_fault(PERTURB, "l_arm", 0.5)])
+    track(ds, method, out, body="dataset", progress=False, hooks=[limb_fault(PERTURB, "l_arm", 0.5)])
     return out
 
 

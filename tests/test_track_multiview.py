@@ -51,7 +51,7 @@ def _track(dataset_path, tmp_path, method, config, extra=("--init", "groundtruth
     cfg = tmp_path / f"{method}.toml"
     cfg.write_text("\n".join(f"{k} = {json.dumps(v)}" for k, v in config.items()) + "\n")
     out = tmp_path / f"res_{method}"
-    rc = main(["-q", "track", str(dataset_path), "--method", method, "--out", str(out),
+    rc = main(["-q", "track", "--body", "dataset", str(dataset_path), "--method", method, "--out", str(out),
                "--config", str(cfg), "--seed", "1", *extra])
     assert rc == 0
     js = tmp_path / f"{method}.json"
@@ -107,7 +107,7 @@ def test_options_are_validated(dataset, tmp_path):
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
                  "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n"):
         cfg.write_text(text)
-        rc = main(["-q", "track", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
+        rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
         assert rc == 1, text
 
@@ -214,7 +214,7 @@ def test_prior_option_is_validated(periodic, tmp_path, capsys):
                          ("prior = \"vlmm\"\nprior_model = "
                           f"{json.dumps(str(tmp_path / 'no.npz'))}\n", "no.npz")):
         cfg.write_text(text)
-        rc = main(["-q", "track", str(root / "ds"), "--method", "hps", "--out", str(tmp_path / "o"),
+        rc = main(["-q", "track", "--body", "dataset", str(root / "ds"), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
         assert rc == 1 and needle in capsys.readouterr().err, text
 
@@ -250,7 +250,7 @@ def test_particles_and_layers_flags(dataset, tmp_path, capsys):
     """--particles / --layers set the sampler budget; flags that do not apply are usage errors."""
     path = dataset[0]
     out = tmp_path / "apf_flags"
-    assert main(["-q", "track", str(path), "--method", "apf", "--out", str(out), "--particles", "30",
+    assert main(["-q", "track", "--body", "dataset", str(path), "--method", "apf", "--out", str(out), "--particles", "30",
                  "--layers", "3", "--frames", "0:2"]) == 0
     frames = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
     assert all(f["evaluations"] == 30 * 3 + 1 for f in frames), [f["evaluations"] for f in frames]

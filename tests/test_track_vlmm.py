@@ -51,7 +51,7 @@ def test_cli_tracking_beats_fixed_pose(setup, evaluation, init):
     root, body, _, test = setup
     cfg = _config(root, f"{evaluation}.toml", evaluation=evaluation, estimate="mean")
     out = f"res_{evaluation}"
-    rc = main(["-q", "track", str(root / "ds"), "--method", "vlmm", "--out", str(root / out),
+    rc = main(["-q", "track", "--body", "dataset", str(root / "ds"), "--method", "vlmm", "--out", str(root / out),
                "--config", cfg, "--init", init, "--seed", "3"])
     assert rc == 0
     err, fixed = _errors(root, out, body, test)
@@ -65,13 +65,13 @@ def test_missing_or_bad_model_is_an_error(setup, tmp_path, capsys):
     root, *_ = setup
     cfg = tmp_path / "c.toml"
     cfg.write_text("particles = 10\n")
-    rc = main(["-q", "track", str(root / "ds"), "--method", "vlmm", "--out",
+    rc = main(["-q", "track", "--body", "dataset", str(root / "ds"), "--method", "vlmm", "--out",
                str(tmp_path / "r"), "--config", str(cfg)])
     assert rc == 1 and "model" in capsys.readouterr().err
     bad = tmp_path / "bad.npz"
     np.savez(bad, x=np.zeros(3))
     cfg.write_text(f"model = {json.dumps(str(bad))}\n")
-    rc = main(["-q", "track", str(root / "ds"), "--method", "vlmm", "--out",
+    rc = main(["-q", "track", "--body", "dataset", str(root / "ds"), "--method", "vlmm", "--out",
                str(tmp_path / "r2"), "--config", str(cfg)])
     assert rc == 1 and "bad.npz" in capsys.readouterr().err
 

@@ -90,7 +90,7 @@ def _run(ds, method, opts, out, ctx, hooks=()):
     t0 = time.perf_counter()
     # the oracle protocol: the true first pose (and the dataset's true body)
     timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx,
-                   hooks=hooks, init="groundtruth")
+                   hooks=hooks, init="groundtruth", body="dataset")
     wall = time.perf_counter() - t0
     res = load_results(out)
     gt = Dataset.open(ds).groundtruth()

@@ -177,7 +177,8 @@ def _run(ds_path, method, options, out, preset, start_pose, ctx, seed) -> dict:
     np.save(init, start_pose)
     t0 = time.perf_counter()
     timing = track(ds_path, method, out, options=options, init=str(init), overwrite=True,
-                   preset=preset, seed=seed, progress=False, ctx=ctx)
+                   preset=preset, seed=seed, progress=False, ctx=ctx,
+                   body="dataset")
     secs = time.perf_counter() - t0
     ds = Dataset.open(ds_path)
     m = evaluate(load_results(out), ds.groundtruth())

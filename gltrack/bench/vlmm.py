@@ -139,7 +139,7 @@ def _track_run(ds, method, opts, out, seed, hooks=()):
     t0 = time.perf_counter()
     # the oracle protocol: the true first pose (and the dataset's true body)
     timing = track(ds, method, out, options=opts, overwrite=True, progress=False, seed=seed,
-                   hooks=hooks, init="groundtruth")
+                   hooks=hooks, init="groundtruth", body="dataset")
     wall = time.perf_counter() - t0
     res = load_results(out)
     with Dataset.open(ds) as d:

@@ -82,10 +82,11 @@ class BodyModel:
 #: ``body.json`` format tag and version (:func:`body_record`).
 BODY_FORMAT = "gltrack-body"
 BODY_VERSION = 1
-#: Where the body of a run came from (``body.json`` ``"source"``): ``"dataset"`` = the body record
-#: in the dataset's ``meta.json`` (for synthetic data the true skeleton: an oracle), ``"file"`` =
-#: a body file given to ``gltrack track --body``.
-BODY_SOURCES = ("dataset", "file")
+#: Where the body of a run came from (``body.json`` ``"source"``): ``"estimate"`` = measured from
+#: the dataset's first frames (:mod:`gltrack.track.body_estimate`, the default), ``"dataset"`` =
+#: the body record in the dataset's ``meta.json`` (for synthetic data the true skeleton: an
+#: oracle), ``"file"`` = a body file given to ``gltrack track --body``.
+BODY_SOURCES = ("estimate", "dataset", "file")
 
 
 def body_to_meta(skeleton: Skeleton, preset: str = "full", lod: int = 1, girth_scale: float = 1.0,

@@ -32,6 +32,8 @@ def _outputs(args):
 
 
 def run(args):
+    from gltrack.body.measure import body_error
+    from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset, load_groundtruth
     from gltrack.data.results import load_results, recorded_body
     from gltrack.eval import metrics as M
@@ -44,12 +46,14 @@ def run(args):
     if recorded is not None:  # refuses a body.json that is not the result's
         body_for_result(result, where=str(recorded[2]), body=recorded[0])
     ds_path = Path(args.dataset)
-    fps = None
+    fps, truth = None, None  # truth: the body record of a (synthetic) dataset
     if ds_path.is_file():
         gt = load_groundtruth(ds_path)
     else:
         ds = Dataset.open(ds_path)
         gt, fps = ds.groundtruth(), ds.fps
+        if ds.body is not None:
+            truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         ds.close()
         if gt is None:
             raise ValueError(f"{ds_path}: dataset has no groundtruth.npz, nothing to score against")
@@ -58,6 +62,10 @@ def run(args):
         body, record, _ = recorded
         metrics["body"] = {"source": record.get("source"), "preset": body.dofs.preset,
                            "height_m": body.skeleton.height()}
+        if record.get("source") != "dataset" and truth is not None:
+            # how far the tracked body is from the one the data was made with
+            metrics["body"]["error_vs_dataset"] = {
+                k: v for k, v in body_error(body.skeleton, truth.skeleton).items()}
     print(f"{args.result}: method {result['method']!r} vs {args.dataset}")
     print(report.summary_table(metrics))
     if args.json:

@@ -34,11 +34,13 @@ def add_arguments(p):
                         "first shows no person); 'groundtruth' takes the true first pose from "
                         "groundtruth.npz (an oracle, for ablations only); or a .npy/.npz pose file")
     p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
-    p.add_argument("--body", default="dataset", metavar="dataset|FILE.json",
-                   help="body to track with, recorded in RESULT/body.json: 'dataset' = the "
-                        "body record in the dataset's meta.json, i.e. the recorded (for synthetic "
-                        "data the true) skeleton, an oracle; or a body.json written by an earlier "
-                        "run (or its results folder) or by hand")
+    p.add_argument("--body", default="estimate", metavar="estimate|dataset|FILE.json",
+                   help="body to track with, recorded in RESULT/body.json: 'estimate' (default) "
+                        "measures the subject's skeleton and girth on the first frames; "
+                        "'dataset' = the body record in the dataset's meta.json, i.e. the "
+                        "recorded (for synthetic data the true) skeleton, an oracle for "
+                        "ablations; or a body.json written by an earlier run (or its results "
+                        "folder) or by hand")
     p.add_argument("--dof", choices=["full", "38", "25"],
                    help="DOF preset overriding the --body record's")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")

@@ -202,9 +202,10 @@ def recorded_body(result):
 
 
 def _body_difference(a: dict, b: dict):
-    """The first field (dotted) in which two body records differ, ignoring ``source``."""
+    """The first field (dotted) in which two body records differ, ignoring where the body came
+    from (``source``, and ``estimate``: what a body estimate did)."""
     for key in sorted(set(a) | set(b)):
-        if key == "source":
+        if key in ("source", "estimate"):
             continue
         va, vb = a.get(key), b.get(key)
         if isinstance(va, dict) and isinstance(vb, dict):

@@ -55,6 +55,11 @@ def summary_table(metrics):
         b = metrics["body"]
         extra.append(f"body: {b['source']} ({b['preset']} DOF preset, height "
                      f"{b['height_m']:.3f} m)")
+        if "error_vs_dataset" in b:
+            e = b["error_vs_dataset"]
+            extra.append(f"body vs the dataset's: bones {e['mean_bone_mm']:.0f} mm mean, "
+                         f"{e['max_bone_mm']:.0f} mm max ({e['worst_bone']}), height "
+                         f"{e['height_mm']:+.0f} mm")
     return "\n".join(lines + extra)
 
 

@@ -1,5 +1,10 @@
 """Which body a run tracks with (``gltrack track --body``): one place resolves the choice.
 
+``estimate`` (the default)
+    Measured from the first frames of the tracked range
+    (:func:`gltrack.track.body_estimate.estimate_body`): needs no body record and no ground
+    truth, so it is what a real recording gets. The record in ``body.json`` keeps what the
+    estimate did (``estimate``: frames used, per-stage costs, seconds, evaluations).
 ``dataset``
     The body record in the dataset's ``meta.json`` (:func:`gltrack.body.model.body_from_meta`).
     For synthetic data this is the true skeleton the data was made with: an oracle, for
@@ -13,38 +18,74 @@ render and eval rebuild the body.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+
+import numpy as np
 
 from gltrack.body.model import BodyModel, body_from_meta, body_record
 from gltrack.data.results import load_body_record
 
+log = logging.getLogger(__name__)
+
 #: The named choices of ``--body`` (anything else is a body file).
-CHOICES = ("dataset",)
+CHOICES = ("estimate", "dataset")
 
 
-def resolve_body(spec: str, dataset, preset: str | None) -> tuple[BodyModel, dict]:
+def estimate_frames(dataset, start: int, stop: int, n_frames: int = 3, span: float = 0.4) -> list:
+    """The frames a body estimate uses: ``n_frames`` spread over the first ``span`` seconds of
+    the tracked range ``start:stop`` (the defaults of
+    :func:`gltrack.track.body_estimate.estimate_body`, moved to where tracking starts)."""
+    last = min(stop - 1, start + int(round(span * dataset.fps)))
+    return sorted({int(round(f)) for f in np.linspace(start, last, max(int(n_frames), 1))})
+
+
+def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
+                 frames: tuple | None = None) -> tuple[BodyModel, dict]:
     """The body a run tracks with, and its record for ``body.json``.
 
     Parameters
     ----------
     spec : str
-        ``"dataset"`` or the path of a body file (or of a results folder holding ``body.json``).
+        ``"estimate"``, ``"dataset"`` or the path of a body file (or of a results folder
+        holding ``body.json``).
     dataset : gltrack.data.dataset.Dataset
         The dataset being tracked (its ``meta.json`` body record for ``"dataset"``).
     preset : str, optional
         DOF preset overriding the recorded one (``--dof``).
+    ctx : moderngl.Context, needed for ``"estimate"``
+    rng : numpy.random.Generator, for ``"estimate"`` (its automatic start)
+    frames : (start, stop), optional, the tracked range (``"estimate"`` measures the body on its
+        first frames)
 
     Returns
     -------
     body : BodyModel
     record : dict
-        :func:`gltrack.body.model.body_record` of ``body``, ``source`` "dataset" or "file".
+        :func:`gltrack.body.model.body_record` of ``body``, ``source`` "estimate", "dataset" or
+        "file".
 
     Raises
     ------
     ValueError
         ``spec`` names no file, or the record is invalid (naming the file and the field).
     """
+    if spec == "estimate":
+        from .body_estimate import estimate_body
+
+        if ctx is None:
+            raise ValueError("--body estimate needs a GL context")
+        start, stop = frames if frames is not None else (0, dataset.frames)
+        est = estimate_body(dataset, ctx, preset=preset or "full",
+                            frames=estimate_frames(dataset, start, stop),
+                            rng=rng if rng is not None else np.random.default_rng(0))
+        log.info("body estimated from frames %s in %.1f s: stature %.3f m, girth scale %.2f",
+                 est.frames, est.seconds, est.skeleton.height(), est.girth_scale)
+        rec = body_record(est.body, "estimate")
+        rec["estimate"] = {"frames": [int(f) for f in est.frames], "costs": est.costs,
+                           "unit": est.unit, "seconds": float(est.seconds),
+                           "evaluations": int(est.evaluations)}
+        return est.body, rec
     if spec == "dataset":
         body = body_from_meta(dataset.body, preset, where=str(Path(dataset.path) / "meta.json"))
         return body, body_record(body, "dataset")

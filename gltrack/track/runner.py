@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from gltrack.data.dataset import Dataset
-from gltrack.data.results import ResultsWriter
+from gltrack.data.results import BODY, ResultsWriter, load_body_record
 from gltrack.export.bvh import write_params_bvh
 
 from .bodies import resolve_body
@@ -122,7 +122,7 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks):
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
-          hooks=(), body: str = "dataset", max_search: int = 30,
+          hooks=(), body: str = "estimate", max_search: int = 30,
           decide_frames: int = 10) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
@@ -134,8 +134,10 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     resume : continue an interrupted run in ``out``
     frames : (start, stop), optional sub-range of the dataset's frames
     preset : DOF preset overriding the body record's
-    body : "dataset" (meta.json's body record) or a body file
-        (:func:`gltrack.track.bodies.resolve_body`); recorded in ``out/body.json``
+    body : "estimate" (measured from the first frames, default), "dataset" (meta.json's body
+        record: an oracle for synthetic data) or a body file
+        (:func:`gltrack.track.bodies.resolve_body`); recorded in ``out/body.json``; a resumed
+        run keeps the body its results folder records
     progress : show a tqdm progress bar
     hooks : callables ``hook(tracker, frame)`` run before each frame is tracked (fault injection)
     max_search : with ``init="auto"``, frames tried from the first one when a frame shows no
@@ -158,11 +160,16 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     if ds.rig != m.rig:
         raise ValueError(f"{ds.path}: method {method!r} needs a {m.rig} dataset, this one is {ds.rig!r}")
     opts = m.options.from_dict(options, where=f"options for {method}")
-    body, body_rec = resolve_body(body, ds, preset)  # the --body choice -> the BodyModel
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
         raise ValueError(f"frames {start}:{stop} outside the dataset's 0:{ds.frames}")
     ctx = ctx or shared_context()
+    if resume and body == "estimate" and (Path(out) / BODY).is_file():
+        # the body estimated when the run began, not a new estimate
+        body, body_rec = load_body_record(out)
+    else:  # the --body choice -> the BodyModel; the estimate's generator is its own
+        body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
+                                      rng=np.random.default_rng([seed, 7]))
     rng = np.random.default_rng(seed)
     tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
