@@ -336,3 +336,18 @@ def test_ingest_shared_pose2sim_take(shared, tmp_path):
         (u, v), = cam.project(origin)
         assert cam.depth_of(origin)[0] > 1 and 0 < u < cam.width and 0 < v < cam.height
     assert ds.colour(2, 3).shape == (192, 109, 3)
+
+
+def test_ingest_shared_caliscope_take_uses_its_timestamps(shared, tmp_path):
+    folder = shared / "video" / "caliscope_4cam"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} absent")
+    videos = [folder / f"cam_{i}.mp4" for i in (3, 2, 1, 0)]  # matched by name, not order
+    r = ingest(folder / "camera_array.toml", videos, tmp_path / "cal", frames=(0, 3), scale=0.1,
+               progress=False)
+    assert r["sync"].endswith("timestamps.csv") and r["fps"] == 6 and r["frames"] == 3
+    assert r["cameras"] == ["cam0", "cam1", "cam2", "cam3"] and r["up"] == "z"
+    meta = json.loads((tmp_path / "cal" / "meta.json").read_text())
+    # frame_index 26.. of clips that start at frame_index 26: video frames 0, 1, 2
+    assert all(v["frames"] == [0, 1, 2] for v in meta["source"]["videos"].values())
+    assert [(c.width, c.height) for c in Dataset.open(tmp_path / "cal").cameras] == [(128, 72)] * 4
