@@ -39,7 +39,8 @@ What :func:`ingest` does, in order, failing before anything is written on bad in
    beside ``out``, renamed into place only when complete (:class:`DatasetWriter`): failing or
    interrupted runs leave nothing that blocks a rerun. The videos are not copied: at the
    default scale a 360x640 frame is ~0.3 MB of PNG, so the 100-frame 4-camera Pose2Sim take
-   is 132 MB (caliscope, 111 frames of 640x360: 120 MB); :data:`DEFAULT_MAX_GB` guards against extracting gigabytes by accident.
+   is 132 MB (caliscope, 111 frames of 640x360: 120 MB); :data:`DEFAULT_MAX_GB` guards against
+   extracting gigabytes by accident.
    ``meta.json``'s ``"source"`` records the calibration, its format, each camera's video, its
    size and the video frame of every dataset frame, the scale and the synchronisation used.
 """
