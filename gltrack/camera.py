@@ -44,6 +44,9 @@ Calibration files
 * OpenCV ``cv2.FileStorage`` YAML / JSON / XML: :func:`load_opencv_yaml`, :func:`save_opencv_yaml`.
 * caliscope ``camera_array.toml`` / ``config.toml``: :func:`load_caliscope_toml`.
 * :func:`load_cameras` picks the reader from the suffix (and, for ``.json``, the content).
+* Pose2Sim / anipose TOML and Qualisys ``.qca.txt`` are read by :mod:`gltrack.data.calibration`,
+  whose ``load_any_calibration`` detects every format above from the content and rejects
+  translations in millimetres.
 """
 from __future__ import annotations
 

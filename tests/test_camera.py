@@ -568,3 +568,222 @@ def test_camera_constructor_names_field():
         Camera("x", "depth", 10, 10, np.eye(3), np.zeros(5), 2 * np.eye(3), np.zeros(3))
     with pytest.raises(ValueError, match=r"Camera\('x'\)\.dist must be"):
         Camera("x", "depth", 10, 10, np.eye(3), np.zeros(4), np.eye(3), np.zeros(3))
+
+
+# ---------------------------------------------------------------------------------------------
+# every calibration reader: round trips, detection from the content, errors, units
+# (gltrack.data.calibration)
+# ---------------------------------------------------------------------------------------------
+from gltrack.data.calibration import (  # noqa: E402
+    check_metres,
+    detect_format,
+    load_any_calibration,
+    load_pose2sim_toml,
+    load_qualisys_qca,
+    save_pose2sim_toml,
+)
+
+
+def _zup_rig(n=3, W=1088, H=1920, distort=True):
+    """Portrait cameras 3 m around the origin of a Z-up world (Pose2Sim-like), known exactly."""
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n + 0.3
+        eye = [3 * np.cos(a), 3 * np.sin(a), 1.5 + 0.1 * i]
+        c = look_at_camera(f"cam_{i + 1:02d}", eye, [0.1, -0.2, 0.9], W, H, 60.0,
+                           up=(0, 0, 1))
+        K = c.K.copy()
+        K[0, 2] += 3.25 * (i + 1)
+        K[1, 1] *= 1.001
+        dist = np.array([-0.05 * (i + 1), 0.01, 0.001, -0.0005, 0.0]) if distort else np.zeros(5)
+        cams.append(dataclasses.replace(c, K=K, dist=dist))
+    return cams
+
+
+def _write_qca(path, cams, video_resolution=None, model="none"):
+    """A Qualisys .qca.txt of ``cams`` with Pose2Sim's conventions (the inverse of the reader)."""
+    lines = ["<?xml version='1.0' encoding='ASCII'?>", '<calibration type="regular">',
+             "  <cameras>"]
+    s = 1.0 if video_resolution is None else 1080 / video_resolution
+    for c in cams:
+        R_qca = np.diag([1.0, -1.0, -1.0]) @ c.R
+        centre_mm = c.center * 1000
+        rot = " ".join(f'r{i + 1}{j + 1}="{R_qca[i, j]:.17g}"' for i in range(3) for j in range(3))
+        res = "" if video_resolution is None else f' video_resolution="{video_resolution}p"'
+        W, H = round(c.width * s), round(c.height * s)
+        lines += [f'    <camera active="1" model="{model}" serial="{c.name}"{res}>',
+                  f'      <fov_video bottom="{H - 1}" left="0" right="{W - 1}" top="0"/>',
+                  f'      <transform {rot} x="{centre_mm[0]:.17g}" y="{centre_mm[1]:.17g}" '
+                  f'z="{centre_mm[2]:.17g}"/>',
+                  f'      <intrinsic focalLengthU="{c.fx * 64 * s:.17g}" focalLengthV="{c.fy * 64 * s:.17g}" '
+                  f'centerPointU="{c.cx * 64 * s:.17g}" centerPointV="{c.cy * 64 * s:.17g}" '
+                  f'radialDistortion1="{c.dist[0] * 64:.17g}" radialDistortion2="{c.dist[1] * 64:.17g}" '
+                  f'radialDistortion3="0" tangentalDistortion1="{c.dist[2] * 64:.17g}" '
+                  f'tangentalDistortion2="{c.dist[3] * 64:.17g}"/>',
+                  "    </camera>"]
+    lines += ["  </cameras>", "</calibration>", ""]
+    Path(path).write_text("\n".join(lines))
+
+
+def _write_caliscope(path, cams):
+    lines = []
+    for i, c in enumerate(cams):
+        lines += [f"[cameras.{i}]", f"cam_id = {i}", "rotation_count = 0", "ignore = false",
+                  f"size = [{c.width}, {c.height}]", f"matrix = {json.dumps(c.K.tolist())}",
+                  f"distortions = {json.dumps(c.dist.tolist())}",
+                  f"translation = {json.dumps(c.t.tolist())}",
+                  f"rotation = {json.dumps(c.R.tolist())}", ""]
+    Path(path).write_text("\n".join(lines))
+
+
+def _max_reprojection(a, b, n=300):
+    """Largest pixel difference of two cameras over points in front of ``a``."""
+    X = _points_in_front(a, np.random.default_rng(7), n)
+    return float(np.abs(a.project(X) - b.project(X)).max())
+
+
+def _assert_same_rig(got, want, names=None, tol_px=1e-6):
+    assert len(got) == len(want)
+    for g, w, name in zip(got, want, names or [c.name for c in want]):
+        assert g.name == name
+        assert (g.width, g.height) == (w.width, w.height)
+        np.testing.assert_allclose(g.K, w.K, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(g.dist, w.dist, atol=1e-12)
+        np.testing.assert_allclose(g.R, w.R, atol=1e-9)
+        np.testing.assert_allclose(g.t, w.t, atol=1e-9)
+        assert _max_reprojection(w, g) < tol_px
+
+
+@pytest.mark.parametrize("fmt", ["gltrack", "opencv-yml", "opencv-json", "opencv-xml",
+                                 "caliscope", "pose2sim", "qualisys"])
+def test_every_reader_round_trips_and_is_detected_from_content(tmp_path, fmt):
+    cams = _zup_rig()
+    # a neutral suffix: the format must come from the content, not from the name
+    path = tmp_path / "calib.dat"
+    names = None
+    if fmt == "gltrack":
+        save_calibration(path, cams)
+    elif fmt.startswith("opencv"):
+        real = tmp_path / f"calib.{fmt.split('-')[1]}"  # FileStorage picks its syntax by suffix
+        save_opencv_yaml(real, cams)
+        real.rename(path)
+    elif fmt == "caliscope":
+        _write_caliscope(path, cams)
+        names = [f"cam{i}" for i in range(len(cams))]
+    elif fmt == "pose2sim":
+        save_pose2sim_toml(path, cams)
+    else:
+        _write_qca(path, cams)
+    want = {"opencv-yml": "opencv", "opencv-json": "opencv", "opencv-xml": "opencv"}.get(fmt, fmt)
+    if fmt.startswith("opencv") and fmt != "opencv-json":
+        path = path.rename(tmp_path / f"calib.{fmt.split('-')[1]}")  # cv2 needs the suffix to read
+    assert detect_format(path) == want
+    _assert_same_rig(load_any_calibration(path), cams, names,
+                     tol_px=1e-6 if fmt != "qualisys" else 1e-5)
+
+
+def test_opencv_json_without_suffix_is_still_read(tmp_path):
+    cams = _zup_rig(2)
+    save_opencv_yaml(tmp_path / "c.json", cams)
+    assert detect_format(tmp_path / "c.json") == "opencv"
+    _assert_same_rig(load_any_calibration(tmp_path / "c.json"), cams)
+
+
+def test_pose2sim_toml_four_distortion_terms_and_metadata(tmp_path):
+    path = tmp_path / "Calib.toml"
+    path.write_text('[cam_01]\nname = "front"\nsize = [ 1088.0, 1920.0]\n'
+                    "matrix = [[1500.0, 0.0, 540.0], [0.0, 1500.0, 960.0], [0.0, 0.0, 1.0]]\n"
+                    "distortions = [-0.01, 0.02, 0.001, 0.002]\nrotation = [0.1, 0.2, 0.3]\n"
+                    "translation = [0.5, 0.6, 3.0]\nfisheye = false\n\n"
+                    "[metadata]\nadjusted = false\nerror = 0.0\n")
+    (cam,) = load_pose2sim_toml(path)
+    assert cam.name == "front" and (cam.width, cam.height) == (1088, 1920)
+    np.testing.assert_array_equal(cam.dist, [-0.01, 0.02, 0.001, 0.002, 0.0])
+    np.testing.assert_allclose(cam.R, cv2.Rodrigues(np.array([0.1, 0.2, 0.3]))[0])
+
+
+def test_qualisys_video_resolution_and_marker_cameras(tmp_path):
+    cams = _zup_rig(2, W=1920, H=1088)
+    # a 540p recording of cameras calibrated at 1080p: image and K halve
+    _write_qca(tmp_path / "a.qca.txt", [c.scaled(960, 544) for c in cams], video_resolution=540)
+    got = load_qualisys_qca(tmp_path / "a.qca.txt")
+    assert [(c.width, c.height) for c in got] == [(960, 544)] * 2
+    for g, c in zip(got, cams):
+        np.testing.assert_allclose(g.fx, c.fx / 2, rtol=1e-12)
+    # marker-only cameras (no video) are skipped as Pose2Sim skips them
+    _write_qca(tmp_path / "b.qca.txt", cams, model="Arqus A12")
+    with pytest.raises(ValueError, match="no video camera"):
+        load_qualisys_qca(tmp_path / "b.qca.txt")
+
+
+@pytest.mark.parametrize("fmt, edit, message", [
+    ("pose2sim", lambda s: s.replace("matrix = ", "matrx = ", 1), r"\[cam_01\]\.matrix is missing"),
+    ("pose2sim", lambda s: s.replace("fisheye = false", "fisheye = true", 1),
+     r"\[cam_01\]\.fisheye"),
+    ("pose2sim", lambda s: s.replace("size = [1088.0, 1920.0]", "size = [1088.0]", 1),
+     r"\[cam_01\]\.size must be \[width, height\]"),
+    ("pose2sim", lambda s: s.replace("rotation = [", "rotation = [1.0, ", 1),
+     r"\[cam_01\]\.rotation must be a Rodrigues vector"),
+    ("qualisys", lambda s: s.replace("focalLengthU=", "focalLengthX=", 1),
+     r"camera\[0\] \(serial cam_01\)\.intrinsic\.focalLengthU is missing"),
+    ("qualisys", lambda s: s.replace(' x="', ' x="abc', 1),
+     r"camera\[0\] \(serial cam_01\)\.transform\.x must be a number"),
+    ("qualisys", lambda s: s.replace("<fov_video", "<fov_vid", 1),
+     r"camera\[0\] \(serial cam_01\): element <fov_video> is missing"),
+    ("qualisys", lambda s: s.replace("</calibration>", "", 1), "not valid XML"),
+])
+def test_reader_errors_name_file_and_field(tmp_path, fmt, edit, message):
+    path = tmp_path / "bad.txt"
+    cams = _zup_rig(2)
+    (save_pose2sim_toml if fmt == "pose2sim" else _write_qca)(path, cams)
+    path.write_text(edit(path.read_text()))
+    with pytest.raises(ValueError, match=message) as info:
+        load_any_calibration(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("hello = 3\n", "TOML without camera tables"),
+    ("<root/>\n", "XML but neither"),
+    ("{not json", "not valid JSON"),
+    ("\x00\x01\x02 binary", "not a calibration file"),
+])
+def test_unknown_formats_are_named(tmp_path, text, message):
+    path = tmp_path / "x.cal"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message) as info:
+        load_any_calibration(path)
+    assert str(path) in str(info.value)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        load_any_calibration(tmp_path / "absent.toml")
+
+
+def test_millimetres_are_detected(tmp_path):
+    cams = _zup_rig()
+    mm = [dataclasses.replace(c, t=c.t * 1000) for c in cams]
+    save_pose2sim_toml(tmp_path / "mm.toml", mm)
+    with pytest.raises(ValueError, match=r"mm\.toml: translation: .*millimetres"):
+        load_any_calibration(tmp_path / "mm.toml")
+    assert check_metres(cams, "ok") < 10  # metres pass: a 3 m ring spans ~5 m
+    save_calibration(tmp_path / "mm.json", mm[:1])  # one camera: its distance from the origin
+    with pytest.raises(ValueError, match=r"mm\.json: t: the camera lies"):
+        load_any_calibration(tmp_path / "mm.json")
+
+
+def test_pose2sim_toml_and_qualisys_agree_on_the_shared_take(shared):
+    folder = shared / "video" / "pose2sim_balancing_4cam"
+    toml, qca = folder / "Calib_qualisys.toml", folder / "Calib.qca.txt"
+    if not (toml.is_file() and qca.is_file()):
+        pytest.skip(f"{folder}: calibration files absent")
+    assert (detect_format(toml), detect_format(qca)) == ("pose2sim", "qualisys")
+    a, b = load_any_calibration(toml), load_any_calibration(qca)
+    assert [c.name for c in a] == ["cam_01", "cam_02", "cam_03", "cam_04"]
+    assert [c.name for c in b] == ["cam01", "cam02", "cam03", "cam04"]
+    # points in the capture volume (Z-up, floor z = 0), in front of every camera
+    rng = np.random.default_rng(3)
+    X = rng.uniform([-1.0, -1.0, 0.0], [1.0, 1.0, 2.0], (500, 3))
+    for ca, cb in zip(a, b):
+        assert (ca.width, ca.height) == (cb.width, cb.height) == (1088, 1920)
+        assert np.all(ca.depth_of(X) > 0)
+        err = np.abs(ca.project(X) - cb.project(X)).max()
+        assert err < 1.0, f"{ca.name}: {err:.3g} px"

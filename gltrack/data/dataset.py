@@ -4,7 +4,9 @@ Layout::
 
     DATASET/
       meta.json           {"format": "gltrack-dataset", "version": 1, "fps": 30, "frames": N,
-                           "rig": "depth" | "multiview", "body": {...optional...}}
+                           "rig": "depth" | "multiview", "body": {...optional...},
+                           "world": {...optional, see Dataset.user_frame...},
+                           "source": {...optional, what gltrack ingest read...}}
       calibration.json    cameras, see :func:`gltrack.camera.load_calibration`
       cam0/000000.png ... depth cameras: uint16 millimetres, 0 = invalid;
                           colour cameras: 8-bit BGR (as cv2.imwrite writes it)
@@ -168,6 +170,10 @@ def _check_meta(meta, path):
         raise ValueError(f"{path}: field 'frames' must be a non-negative integer, got {n!r}")
     if not isinstance(meta.get("body", {}), dict):
         raise ValueError(f"{path}: field 'body' must be an object")
+    if "world" in meta:
+        from gltrack.data.world import check_world
+
+        check_world(meta["world"], path)
 
 
 def _check_image(img, where, cam, role):
@@ -494,6 +500,43 @@ class Dataset:
                 med = np.nanmedian(valid, axis=0)
             return np.nan_to_num(med, nan=0.0).astype(np.float32)
         return np.median(stack, axis=0).round().astype(np.uint8)
+
+    # ---- the user's world frame -------------------------------------------------------------
+    def user_frame(self):
+        """(3, 3) float64 ``R_user_from_internal``: ``X_user = R @ X_internal``.
+
+        Cameras, ground truth and results of a dataset are in gltrack's internal +Y-up frame;
+        ``meta.json``'s ``"world"`` record (written by ``gltrack ingest``, see
+        :mod:`gltrack.data.world`) gives the rotation back to the frame of the user's
+        calibration. Identity when the dataset has none (it was made in the internal frame).
+        """
+        world = self.meta.get("world")
+        if world is None:
+            return np.eye(3)
+        from gltrack.data.world import check_world
+
+        return check_world(world, self.path / META)
+
+    def up_axis(self):
+        """The user frame's up axis (``"y"``, ``"z"``, ``"-y"``, ...); ``"y"`` without a record."""
+        return (self.meta.get("world") or {}).get("up", "y")
+
+    def to_user_frame(self, points):
+        """Points in the internal frame to the user's calibration frame.
+
+        Parameters
+        ----------
+        points : (..., 3) array_like, metres, internal (+Y up) world coordinates
+
+        Returns
+        -------
+        (..., 3) float64, metres, in the frame (and origin) of the user's calibration.
+        """
+        return np.asarray(points, dtype=np.float64) @ self.user_frame().T
+
+    def from_user_frame(self, points):
+        """The inverse of :meth:`to_user_frame`: (..., 3) user-frame points to internal ones."""
+        return np.asarray(points, dtype=np.float64) @ self.user_frame()
 
     # ---- environment and ground truth -------------------------------------------------------
     def environment(self):

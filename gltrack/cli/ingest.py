@@ -1,0 +1,82 @@
+"""``gltrack ingest``: a dataset from your own calibrated videos (see :mod:`gltrack.data.ingest`)."""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+NAME = "ingest"
+HELP = ("make a multi-view dataset from calibrated, synchronised videos (calibration from "
+        "Pose2Sim/anipose, Qualisys, caliscope, OpenCV or gltrack; detected from the content)")
+
+
+def add_arguments(p):
+    from gltrack.data.ingest import DEFAULT_LONG_SIDE, DEFAULT_MAX_GB
+
+    p.add_argument("--calibration", required=True, metavar="FILE",
+                   help="Pose2Sim/anipose .toml, Qualisys .qca.txt, caliscope camera_array.toml, "
+                        "OpenCV FileStorage .yml/.json/.xml or gltrack calibration.json")
+    p.add_argument("--video", required=True, nargs="+", metavar="V",
+                   help="one video per camera, matched by name (cam01 = cam_01 = CAM1.mp4) or, "
+                        "when no name matches, by order")
+    p.add_argument("--out", required=True, metavar="DIR", help="dataset folder to create")
+    p.add_argument("--frames", default=None, metavar="A:B",
+                   help="synchronised frames A (inclusive) to B (exclusive) at the videos' rate; "
+                        "default: all")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of the dataset, at most the videos' (frames are skipped, "
+                        "never invented); default: the videos' rate")
+    p.add_argument("--scale", type=float, default=None, metavar="S",
+                   help="downscale factor (0 < S <= 1) of every image and camera; default: the "
+                        f"longest side becomes at most {DEFAULT_LONG_SIDE} px")
+    p.add_argument("--up", default="auto", choices=["auto", "x", "y", "z", "-x", "-y", "-z"],
+                   help="up axis of the calibration's world; auto: the world axis nearest the "
+                        "cameras' mean image-up direction")
+    p.add_argument("--timestamps", default=None, metavar="CSV",
+                   help="caliscope timestamps.csv for synchronisation (default: the one beside "
+                        "the calibration, if any; 'none' to ignore it)")
+    p.add_argument("--max-gb", type=float, default=DEFAULT_MAX_GB,
+                   help="refuse to write more PNG frames than this many GB")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
+
+
+def run(args):
+    from .common import UsageError
+    from .synth import parse_frames
+
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    if args.fps is not None and not args.fps > 0:
+        raise UsageError(f"--fps must be positive, got {args.fps}")
+    if args.scale is not None and not 0 < args.scale <= 1:
+        raise UsageError(f"--scale must be in (0, 1], got {args.scale}")
+    if not args.max_gb > 0:
+        raise UsageError(f"--max-gb must be positive, got {args.max_gb}")
+    out = Path(args.out)
+    if out.exists() and not args.overwrite and (not out.is_dir() or any(out.iterdir())):
+        raise UsageError(f"{out}: exists and is not empty (use --overwrite to replace it)")
+    calibration = Path(args.calibration)
+    if not calibration.is_file():
+        raise ValueError(f"{calibration}: no such file")
+    timestamps = args.timestamps
+    if timestamps is not None:
+        if timestamps.lower() == "none":
+            timestamps = False
+        elif not Path(timestamps).is_file():
+            raise ValueError(f"{timestamps}: no such file")
+
+    from gltrack.data.ingest import ingest
+
+    t0 = time.perf_counter()
+    r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
+               up=args.up, timestamps=timestamps, overwrite=args.overwrite,
+               progress=not getattr(args, "quiet", False), max_gb=args.max_gb)
+    dt = time.perf_counter() - t0
+    sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
+    up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"
+                    if r["up_angle_deg"] is not None else "")
+    print(f"wrote {r['path']} ({r['frames']} frames at {r['fps']:g} fps, {len(r['cameras'])} "
+          f"cameras: {sizes}; scale {r['scale']:.4g}; calibration {r['calibration_format']}; "
+          f"up {up}; sync {r['sync']}; {r['bytes'] / 1e6:.1f} MB in {dt:.1f} s)")
+    return 0
