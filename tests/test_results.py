@@ -202,3 +202,46 @@ def test_sigkill_mid_run_loses_no_finished_frame(tmp_path):
     assert done == list(range(len(done)))  # the resumed child continued exactly after the last
     w.finish()
     check_arrays(load_results(out), done)
+
+
+def test_world_frame_rotates_points_records_it_and_guards_resume(tmp_path):
+    from gltrack.data.results import internal_points, result_frame
+    from gltrack.data.world import world_meta
+
+    world = world_meta("z")
+    R = np.array(world["R_user_from_internal"])
+    out = tmp_path / "res"
+    w = ResultsWriter(out, "sir", JOINTS, MARKERS, world=world)
+    write_frames(w, [0, 1])
+    w.close()
+    assert json.loads((out / "run.json").read_text())["world"] == world
+    # a crashed run (frames.jsonl only) and a finished one read back alike
+    for finish in (False, True):
+        if finish:
+            with pytest.raises(ValueError, match="world"):
+                ResultsWriter(out, "sir", JOINTS, MARKERS, resume=True)  # another frame
+            w = ResultsWriter(out, "sir", JOINTS, MARKERS, resume=True, world=world)
+            write_frames(w, [2])
+            w.finish()
+        r = load_results(out)
+        assert r["world"] == world
+        np.testing.assert_array_equal(result_frame(r), R)
+        for i, f in enumerate(r["frame"]):
+            p, j, m = frame_data(f)
+            np.testing.assert_allclose(r["joints"][i], j @ R.T, atol=1e-12)
+            np.testing.assert_allclose(r["markers"][i], m @ R.T, atol=1e-12)
+            np.testing.assert_allclose(internal_points(r)[i], j, atol=1e-12)
+            np.testing.assert_array_equal(r["params"][i], p)  # params stay internal
+    npz = np.load(out / "poses.npz")
+    assert str(npz["world_up"]) == "z"
+    np.testing.assert_array_equal(npz["R_user_from_internal"], R)
+    assert load_results(out / "poses.npz")["world"] == world
+
+
+def test_identity_frame_records_nothing(tmp_path):
+    w = ResultsWriter(tmp_path / "res", "sir", JOINTS, MARKERS)
+    write_frames(w, [0])
+    w.finish()
+    assert "world" not in json.loads((tmp_path / "res" / "run.json").read_text())
+    assert "R_user_from_internal" not in np.load(tmp_path / "res" / "poses.npz").files
+    assert load_results(tmp_path / "res")["world"] is None

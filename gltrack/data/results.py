@@ -18,6 +18,28 @@ Layout::
                     DOF preset, mesh level of detail and girths, "source"), written when the run
                     starts; export, render and eval rebuild the body from it
 
+Frame of the coordinates
+------------------------
+``joints`` and ``markers`` (in ``frames.jsonl`` and ``poses.npz``) are in the **user's frame**,
+the frame of the calibration the dataset was made from (``../shared/ARCHITECTURE.md``: "results
+are in the dataset's world frame, i.e. the user's calibration frame, whatever its up axis").
+gltrack tracks in its internal +Y-up frame (:mod:`gltrack.data.world`); for a dataset whose
+``meta.json`` has a ``"world"`` record (``gltrack ingest``), :class:`ResultsWriter` rotates the
+points it is given by ``R_user_from_internal`` as it writes them, and records the rotation:
+``run.json`` gets ``"world": {"up", "R_user_from_internal"}`` and ``poses.npz`` the arrays
+``world_up`` () and ``R_user_from_internal`` (3, 3). ``params`` stay the body model's
+coordinates, in the internal frame (the root translation and the root angles are what the
+body's forward kinematics takes): ``R_user_from_internal @ FK(params)`` gives the stored joints.
+A run on a dataset without ``"world"`` (every synthetic one) records nothing and is unchanged,
+byte for byte: internal and user frame are then the same. :func:`result_frame` and
+:func:`internal_points` read a loaded result's frame back.
+
+Why the results folder holds user-frame points rather than internal ones with a note: it is
+the file users and other tools read (the contract above; a comparison with an independent
+reconstruction of a take reads ``poses.npz`` joints in the calibration's coordinates), so it
+must need no conversion; the few readers that project points with the dataset's (internal)
+cameras, the overlay and ``eval`` against a dataset's ground truth, convert explicitly.
+
 ``frames.jsonl`` is the source of truth while tracking: a process killed at any point loses at
 most the frame it was writing, and ``ResultsWriter(..., resume=True)`` continues after the last
 complete line. ``poses.npz``, ``timing.json`` and ``body.json`` are written through a temporary
@@ -116,6 +138,10 @@ def _read_run(out):
         raise ValueError(f"{path}: field 'version' {run.get('version')!r} unknown (expected {VERSION})")
     if not isinstance(run.get("method"), str):
         raise ValueError(f"{path}: field 'method' must be a string")
+    if run.get("world") is not None:
+        from gltrack.data.world import world_record
+
+        run["world"] = world_record(run["world"], path)
     for key in ("joint_names", "marker_names"):
         v = run.get(key)
         if v is None and key == "marker_names":
@@ -294,6 +320,12 @@ class ResultsWriter:
         The record of the body the run tracks with (:func:`gltrack.body.model.body_record`),
         written to ``body.json`` with ``run.json`` before the first frame. On resume it must
         equal the stored record (its ``source`` aside); a run without one stored gets it.
+    world : dict, optional
+        The dataset's ``meta.json`` ``"world"`` record (:mod:`gltrack.data.world`). Given, the
+        joints and markers passed to :meth:`append` (internal frame) are written rotated into
+        the user's frame and the record is kept in ``run.json`` and ``poses.npz`` (see "Frame
+        of the coordinates" above); None (default): they are written as given and nothing is
+        recorded. On resume it must equal the stored one.
 
     Raises
     ------
@@ -304,9 +336,13 @@ class ResultsWriter:
     """
 
     def __init__(self, out, method, joint_names, marker_names=None, resume=False, overwrite=False,
-                 body=None):
+                 body=None, world=None):
         if resume and overwrite:
             raise ValueError("resume and overwrite exclude each other")
+        from gltrack.data.world import world_record
+
+        self.world = world_record(world, "ResultsWriter(world=...)")
+        self._R = None if self.world is None else np.array(self.world["R_user_from_internal"])
         self.out = Path(out)
         self.method = str(method)
         self.joint_names = [str(s) for s in joint_names]
@@ -327,6 +363,8 @@ class ResultsWriter:
                 (self.out / name).unlink()
             run = {"format": FORMAT, "version": VERSION, "method": self.method,
                    "joint_names": self.joint_names, "marker_names": self.marker_names}
+            if self.world is not None:
+                run["world"] = self.world
             _atomic_write_bytes(self.out / RUN, json.dumps(run, indent=1).encode())
             if body is not None:
                 _write_body(self.out, body)
@@ -340,6 +378,11 @@ class ResultsWriter:
             if run[key] != value:
                 raise ValueError(f"{self.out / RUN}: field {key!r} is {run[key]!r}, this run has "
                                  f"{value!r}; cannot resume")
+        from gltrack.data.world import same_world
+
+        if not same_world(run.get("world"), self.world):
+            raise ValueError(f"{self.out / RUN}: field 'world' is {run.get('world')!r}, this run's "
+                             f"dataset has {self.world!r}; cannot resume in another frame")
         if body is not None:
             self._check_body(body)
         records, good = read_frames(self.out, len(self.joint_names), self._n_markers)
@@ -398,8 +441,9 @@ class ResultsWriter:
             Dataset frame index; must not be recorded already.
         params : (D,) float
             Pose parameters (radians, metres for the root translation).
-        joints : (J, 3) float, metres
-        markers : (M, 3) float, metres, or None when the run has no markers.
+        joints : (J, 3) float, metres, internal frame (written in the user's frame when the
+            writer has a ``world``)
+        markers : (M, 3) float, metres, or None when the run has no markers; like ``joints``.
         score : float
             Tracker's score of the pose.
         evaluations : int
@@ -423,6 +467,8 @@ class ResultsWriter:
         markers = np.zeros((0, 3)) if markers is None else np.asarray(markers, dtype=np.float64)
         if markers.shape != (self._n_markers, 3):
             raise ValueError(f"markers must be ({self._n_markers}, 3), got {markers.shape}")
+        if self._R is not None:
+            joints, markers = joints @ self._R.T, markers @ self._R.T
         rec = {"frame": frame, "params": params, "joints": joints, "markers": markers,
                "score": float(score), "evaluations": int(evaluations), "seconds": float(seconds)}
         if info:
@@ -440,7 +486,7 @@ class ResultsWriter:
     def arrays(self):
         """All finished frames as arrays sorted by frame (the contents of ``poses.npz``)."""
         return _records_to_arrays(sorted(self._records, key=lambda r: r["frame"]), self.method,
-                                  self.joint_names, self.marker_names, self._n_params)
+                                  self.joint_names, self.marker_names, self._n_params, self.world)
 
     def finish(self):
         """Write ``poses.npz`` and ``timing.json`` from all finished frames and close the log.
@@ -480,7 +526,7 @@ class ResultsWriter:
         return False
 
 
-def _records_to_arrays(records, method, joint_names, marker_names, n_params):
+def _records_to_arrays(records, method, joint_names, marker_names, n_params, world=None):
     j = len(joint_names)
     m = 0 if marker_names is None else len(marker_names)
     d = n_params or 0
@@ -488,7 +534,7 @@ def _records_to_arrays(records, method, joint_names, marker_names, n_params):
     def stack(key, shape):
         return np.stack([r[key] for r in records]) if records else np.zeros((0,) + shape)
 
-    return {
+    out = {
         "params": stack("params", (d,)),
         "joints": stack("joints", (j, 3)),
         "joint_names": np.array(joint_names, dtype=str),
@@ -500,6 +546,10 @@ def _records_to_arrays(records, method, joint_names, marker_names, n_params):
         "evaluations": np.array([r["evaluations"] for r in records], dtype=np.int64),
         "seconds": np.array([r["seconds"] for r in records], dtype=np.float64),
     }
+    if world is not None:
+        out["world_up"] = np.array(world.get("up") or "")
+        out["R_user_from_internal"] = np.array(world["R_user_from_internal"], dtype=np.float64)
+    return out
 
 
 def _validate_arrays(a, where):
@@ -540,6 +590,16 @@ def _validate_arrays(a, where):
         "marker_names": [str(s) for s in mnames], "score": score.astype(np.float64),
         "method": str(method), "frame": frame.astype(np.int64),
     }
+    out["world"] = None
+    if "R_user_from_internal" in a:
+        from gltrack.data.world import world_record
+
+        up = str(np.asarray(a.get("world_up", ""))) or None
+        try:
+            R = np.asarray(a["R_user_from_internal"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: field 'R_user_from_internal' must be numeric") from None
+        out["world"] = world_record({"up": up, "R_user_from_internal": R.tolist()}, where)
     for key in ("evaluations", "seconds"):
         if key in a:
             v = np.asarray(a[key])
@@ -585,5 +645,48 @@ def load_results(path):
     d = len(records[0]["params"]) if records else 0
     if any(len(r["params"]) != d for r in records):
         raise ValueError(f"{path / FRAMES}: field 'params' changes length between frames")
-    arrays = _records_to_arrays(records, run["method"], run["joint_names"], mnames, d)
+    arrays = _records_to_arrays(records, run["method"], run["joint_names"], mnames, d,
+                                run.get("world"))
     return _validate_arrays(arrays, str(path / FRAMES))
+
+
+def result_frame(result) -> np.ndarray:
+    """(3, 3) float64 ``R_user_from_internal`` of a loaded result (:func:`load_results`):
+    ``joints = R @ FK(params)``; the identity for results that record no ``"world"``."""
+    world = result.get("world")
+    if world is None:
+        return np.eye(3)
+    return np.asarray(world["R_user_from_internal"], dtype=np.float64)
+
+
+def internal_points(result, key: str = "joints") -> np.ndarray:
+    """A loaded result's ``joints`` or ``markers`` (N, K, 3), metres, in gltrack's internal
+    (+Y up) frame, the frame of the dataset's cameras and ground truth. For results without a
+    ``"world"`` record, the stored array itself."""
+    xyz = np.asarray(result[key], dtype=np.float64)
+    if result.get("world") is None:
+        return xyz
+    return xyz @ result_frame(result)
+
+
+def check_result_world(result, dataset, where: str = "the result"):
+    """Refuse a result whose recorded frame is not ``dataset``'s (tracked on another dataset).
+
+    Parameters
+    ----------
+    result : dict, from :func:`load_results`
+    dataset : gltrack.data.dataset.Dataset
+    where : str, the result's path, for the message
+
+    Raises
+    ------
+    ValueError
+        Naming both files and the ``world`` field.
+    """
+    from gltrack.data.world import same_world
+
+    mine = dataset.meta.get("world")
+    if not same_world(result.get("world"), mine):
+        raise ValueError(f"{where}: field 'world' ({result.get('world')!r}) is not the frame of "
+                         f"{dataset.path / 'meta.json'} ({mine!r}): was it tracked on this "
+                         "dataset?")

@@ -122,3 +122,37 @@ def check_world(obj, where) -> np.ndarray:
     if up is not None and up not in AXES:
         raise ValueError(f"{where}: field 'world.up' must be one of {AXES}, got {up!r}")
     return R
+
+
+def world_record(obj, where) -> dict | None:
+    """A validated, normalised ``"world"`` record (``{"up", "R_user_from_internal"}`` with the
+    matrix as nested lists), or None for ``obj`` None (the internal frame itself)."""
+    if obj is None:
+        return None
+    R = check_world(obj, where)
+    return {"up": obj.get("up"), "R_user_from_internal": R.tolist()}
+
+
+def same_world(a, b, tol: float = 1e-9) -> bool:
+    """Whether two ``"world"`` records (or None = identity) describe the same rotation."""
+    Ra = np.eye(3) if a is None else np.asarray(a["R_user_from_internal"], dtype=np.float64)
+    Rb = np.eye(3) if b is None else np.asarray(b["R_user_from_internal"], dtype=np.float64)
+    return bool(np.abs(Ra - Rb).max() <= tol)
+
+
+def opensim_from_user(up: str) -> np.ndarray:
+    """(3, 3) proper rotation from the user's frame to the Y-up axes OpenSim and Pose2Sim use.
+
+    The user's axes are relabelled cyclically so that the up axis becomes +Y; for a Z-up frame
+    this is Pose2Sim's ``zup2yup`` (``X, Y, Z = y, z, x``: the calibration's y becomes X, its
+    z (up) Y and its x Z), which Pose2Sim applies to every TRC it writes from a (Z-up)
+    calibration, so a gltrack TRC lands on a Pose2Sim TRC of the same take. ``"y"`` gives the
+    identity; ``"x"`` gives ``X, Y, Z = z, x, y``; a negative up axis also negates the third
+    axis, which keeps the rotation proper.
+    """
+    axis_vector(up)  # validates the name
+    k = "xyz".index(up[-1])
+    rows = np.eye(3)[[(k + 2) % 3, k, (k + 1) % 3]]
+    if up.startswith("-"):
+        rows[1:] *= -1.0
+    return rows + 0.0  # no negative zeros

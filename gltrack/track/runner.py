@@ -173,7 +173,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     rng = np.random.default_rng(seed)
     tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
-                           resume=resume, overwrite=overwrite, body=body_rec)
+                           resume=resume, overwrite=overwrite, body=body_rec,
+                           world=ds.meta.get("world"))  # joints/markers saved in the user's frame
     decided = {}  # frames already tracked while deciding between start hypotheses
     try:
         done = writer.done_frames
