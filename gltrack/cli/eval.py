@@ -9,7 +9,8 @@ HELP = "score a results folder against a dataset's ground truth (joint, MPJPE, P
 
 def add_arguments(p):
     p.add_argument("result", help="results folder (poses.npz, or frames.jsonl of an unfinished run)")
-    p.add_argument("dataset", help="dataset folder with groundtruth.npz (or a groundtruth.npz file)")
+    p.add_argument("dataset", help="dataset folder with groundtruth.npz (or a groundtruth.npz "
+                                   "file, in the result's frame: the user's calibration frame)")
     p.add_argument("--json", metavar="FILE", default=None,
                    help="write the metrics (summary and per-frame) as JSON")
     p.add_argument("--csv", metavar="FILE", default=None, help="write the per-frame errors as CSV")
@@ -31,11 +32,30 @@ def _outputs(args):
         raise UsageError(f"--plot {args.plot}: use a .png, .pdf or .svg file name")
 
 
+def groundtruth_in_result_frame(gt, result):
+    """A dataset's ground truth (internal frame, like its cameras) in the frame of ``result``'s
+    joints and markers (the user's, :mod:`gltrack.data.results`): eval compares like with
+    like. A ``groundtruth.npz`` given as a file is taken to be in the result's frame already.
+    None stays None; results without a user frame get ``gt`` unchanged."""
+    import numpy as np
+
+    from gltrack.data.results import result_frame
+
+    if gt is None or result.get("world") is None:
+        return gt
+    R = result_frame(result)
+    gt = dict(gt)
+    for key in ("joints", "markers"):
+        if gt.get(key) is not None:
+            gt[key] = np.asarray(gt[key], dtype=np.float64) @ R.T
+    return gt
+
+
 def run(args):
     from gltrack.body.measure import body_error
     from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset, load_groundtruth
-    from gltrack.data.results import load_results, recorded_body
+    from gltrack.data.results import check_result_world, load_results, recorded_body
     from gltrack.eval import metrics as M
     from gltrack.eval import report
     from gltrack.export import body_for_result
@@ -51,7 +71,8 @@ def run(args):
         gt = load_groundtruth(ds_path)
     else:
         ds = Dataset.open(ds_path)
-        gt, fps = ds.groundtruth(), ds.fps
+        check_result_world(result, ds, args.result)
+        gt, fps = groundtruth_in_result_frame(ds.groundtruth(), result), ds.fps
         if ds.body is not None:
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         ds.close()

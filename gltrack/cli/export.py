@@ -29,6 +29,13 @@ def add_arguments(p):
                         "RESULT/body.json (which records it; default: the dataset's body)")
     p.add_argument("--points", choices=["markers", "joints"], default="markers",
                    help="what a .trc file holds: surface markers or joint centres")
+    p.add_argument("--trc-axes", choices=["opensim", "calibration"], default="opensim",
+                   help="axes of a .trc file of a result in a user's calibration frame: "
+                        "'opensim' (Y up, the calibration's axes relabelled as Pose2Sim does, "
+                        "default) or 'calibration' (the calibration's own axes)")
+    p.add_argument("--units", choices=["m", "mm"], default=None,
+                   help="length unit of a .trc file (default: m for a result in a user's "
+                        "calibration frame, as Pose2Sim writes; mm otherwise)")
 
 
 def _format_and_out(args):
@@ -67,7 +74,10 @@ def run(args):
     recorded = recorded_body(args.result)
     body_meta, fps, where = None, _DEFAULT_FPS, "the default body"
     if args.dataset:
+        from gltrack.data.results import check_result_world
+
         with Dataset.open(args.dataset) as ds:
+            check_result_world(result, ds, args.result)
             body_meta, fps, where = ds.body, ds.fps, str(Path(args.dataset) / "meta.json")
     if args.fps is not None:
         fps = args.fps
@@ -75,6 +85,7 @@ def run(args):
         body_meta, where = None, str(recorded[2])
     body = body_for_result(result, body_meta, args.dof, where=where,
                            body=recorded[0] if recorded else None)
-    export_result(result, out, fmt, body, fps, points=args.points)
+    export_result(result, out, fmt, body, fps, points=args.points, axes=args.trc_axes,
+                  units=args.units)
     print(f"{out}: {fmt}, {len(result['params'])} frames at {fps:g} fps")
     return 0

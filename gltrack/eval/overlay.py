@@ -121,7 +121,8 @@ class OverlayRenderer:
 
     def __init__(self, result, dataset, cameras="all", preset=None):
         from gltrack.data.dataset import Dataset
-        from gltrack.data.results import load_results, recorded_body
+        from gltrack.data.results import check_result_world, internal_points, load_results, \
+            recorded_body
         from gltrack.export import body_for_result
 
         recorded = None if isinstance(result, dict) else recorded_body(result)
@@ -129,6 +130,9 @@ class OverlayRenderer:
         self._owns_dataset = not isinstance(dataset, Dataset)
         self.dataset = Dataset.open(dataset) if self._owns_dataset else dataset
         ds = self.dataset
+        check_result_world(self.result, ds, "the result" if isinstance(result, dict) else result)
+        # the joints drawn and scored in the dataset's (internal) frame, that of its cameras
+        self._joints = internal_points(self.result)
         if recorded is not None:
             self.body = body_for_result(self.result, None, preset, where=str(recorded[2]),
                                         body=recorded[0])
@@ -193,7 +197,7 @@ class OverlayRenderer:
         if self._err_idx is None:
             return float("nan")
         ia, ib = self._err_idx
-        pred = np.asarray(self.result["joints"])[self._order[i]][ia]
+        pred = self._joints[self._order[i]][ia]
         gt = self.gt["joints"][self.rows[i]][ib]
         d = np.linalg.norm(pred - gt, axis=1)
         d = d[np.isfinite(d)]
@@ -258,7 +262,7 @@ class OverlayRenderer:
         if self.gt is not None and self._gt_bones:
             self._draw_skeleton(img, cam, self.gt["joints"][f], self._gt_bones, GROUNDTRUTH_BGR,
                                 thick)
-        joints = np.asarray(self.result["joints"])[self._order[i]]
+        joints = self._joints[self._order[i]]
         self._draw_skeleton(img, cam, joints, self._bones, TRACKED_BGR, thick)
         err = self.frame_error(i)
         lines = [f"frame {f}  {cam.name}"]

@@ -24,6 +24,18 @@ Schema (``"format": "gltrack-motion"``, ``"version": 1``)::
       ]
     }
 
+A result in a user's frame (tracked on a dataset made by ``gltrack ingest``, see
+:mod:`gltrack.data.results`) has, instead of the ``"axes"`` line above::
+
+      "axes": "the user's calibration frame (up: z); params: gltrack's internal frame ...",
+      "world": {"up": "z",                   the user frame's up axis
+                "R_user_from_internal": 3x3} joints and markers are in the user's frame;
+                                             params (root translation and angles) are in
+                                             gltrack's internal +Y-up frame, and
+                                             joints = R_user_from_internal @ FK(params)
+
+Results without one (synthetic data) have no ``"world"``: their frame is gltrack's.
+
 Non-finite numbers (a marker that was not available) are written as ``null`` so the file is
 strict JSON.
 """
@@ -89,6 +101,15 @@ def motion_document(result: dict, fps: float, body=None) -> dict:
         "marker_names": [str(s) for s in result.get("marker_names", [])],
         "frames": [],
     }
+    world = result.get("world")
+    if world is not None:
+        doc["axes"] = (f"the user's calibration frame (up: {world.get('up') or 'see world'}) "
+                       "for joints and markers; params in gltrack's internal frame (right-handed, "
+                       "+Y up, body faces +Z at rest): X_user = R_user_from_internal @ X_internal")
+        doc["world"] = {"up": world.get("up"),
+                        "R_user_from_internal": np.asarray(world["R_user_from_internal"],
+                                                           dtype=np.float64).tolist()}
+        doc["frames"] = doc.pop("frames")  # keep the frames last
     for i in range(len(params)):
         doc["frames"].append({
             "frame": int(frames[i]), "time": float(frames[i]) / float(fps),

@@ -11,8 +11,11 @@ Layout written (tab-separated; ``<TAB>`` shown as ``|``)::
     1|0.00000|x|y|z|x|y|z ...
 
 ``Frame#`` is 1-based (the dataset frame index + 1), ``Time`` is ``frame / fps`` seconds and the
-coordinates are millimetres in the gltrack world frame, which is OpenSim's (+Y up). A point
-without a value (NaN) is written as empty fields, OpenSim's mark for a missing marker.
+coordinates are in ``Units`` (``mm``, the default, or ``m``), in the frame the caller gives them
+in: :func:`gltrack.export.export_result` passes gltrack's frame for synthetic data (+Y up, as
+OpenSim's) and, for a result in a user's frame, Pose2Sim's Y-up relabelling of it, in metres
+(:func:`gltrack.export.trc_frame`). A point without a value (NaN) is written as empty fields,
+OpenSim's mark for a missing marker.
 """
 from __future__ import annotations
 
@@ -28,11 +31,16 @@ HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units", "Or
                "OrigDataStartFrame", "OrigNumFrames")
 
 
-def _coord(x: float) -> str:
-    return f"{x:.3f}" if np.isfinite(x) else ""
+def _coord(x: float, digits: int = 3) -> str:
+    return f"{x:.{digits}f}" if np.isfinite(x) else ""
 
 
-def format_trc(names, points, fps: float, frames=None, filename: str = "markers.trc") -> str:
+#: Length units a TRC file may be written in, and metres to them.
+UNITS = {"mm": 1000.0, "m": 1.0}
+
+
+def format_trc(names, points, fps: float, frames=None, filename: str = "markers.trc",
+               units: str = "mm") -> str:
     """The text of a ``.trc`` file.
 
     Parameters
@@ -45,6 +53,8 @@ def format_trc(names, points, fps: float, frames=None, filename: str = "markers.
         0-based frame index of each row (written 1-based); default ``0..T-1``.
     filename : str
         Name recorded on the first line.
+    units : {"mm", "m"}
+        Unit of the coordinates written (the ``Units`` header field).
 
     Returns
     -------
@@ -61,6 +71,8 @@ def format_trc(names, points, fps: float, frames=None, filename: str = "markers.
             raise ValueError(f"marker name {n!r} is empty or holds a tab or line break")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps!r}")
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {sorted(UNITS)}, got {units!r}")
     T, M = X.shape[:2]
     frames = np.arange(T) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
     if frames.shape != (T,) or np.any(frames < 0):
@@ -69,21 +81,24 @@ def format_trc(names, points, fps: float, frames=None, filename: str = "markers.
     lines = [
         f"PathFileType\t4\t(X/Y/Z)\t{filename}",
         "\t".join(HEADER_KEYS),
-        f"{fps:.2f}\t{fps:.2f}\t{T}\t{M}\tmm\t{fps:.2f}\t{start}\t{T}",
+        f"{fps:.2f}\t{fps:.2f}\t{T}\t{M}\t{units}\t{fps:.2f}\t{start}\t{T}",
         "Frame#\tTime\t" + "\t\t\t".join(names) + "\t\t",
         "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, M + 1)),
         "",
     ]
-    mm = X * 1000.0
-    for f, row in zip(frames, mm):
-        lines.append(f"{f + 1}\t{f / fps:.5f}\t" + "\t".join(_coord(v) for v in row.reshape(-1)))
+    # metres are written with 6 decimals, millimetres with 3: micrometres either way
+    scaled = X * UNITS[units]
+    digits = 3 if units == "mm" else 6
+    for f, row in zip(frames, scaled):
+        lines.append(f"{f + 1}\t{f / fps:.5f}\t"
+                     + "\t".join(_coord(v, digits) for v in row.reshape(-1)))
     return "\n".join(lines) + "\n"
 
 
-def write_trc(path, names, points, fps: float, frames=None) -> Path:
+def write_trc(path, names, points, fps: float, frames=None, units: str = "mm") -> Path:
     """Write a ``.trc`` file (see :func:`format_trc`); returns the path."""
     path = Path(path)
-    path.write_text(format_trc(names, points, fps, frames, filename=path.name))
+    path.write_text(format_trc(names, points, fps, frames, filename=path.name, units=units))
     log.info("wrote %s (%d frames, %d markers)", path, len(points), len(names))
     return path
 
