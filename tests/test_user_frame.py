@@ -17,8 +17,8 @@ import pytest
 
 from gltrack.cli import main
 from gltrack.data.results import load_results
-from gltrack.data.world import opensim_from_user, world_meta
-from gltrack.export import read_trc
+from gltrack.data.world import world_meta
+from gltrack.export import opensim_axes, read_trc
 
 sys.path.insert(0, str(Path(__file__).parent))
 from trackdata import make_depth_dataset  # noqa: E402
@@ -82,7 +82,7 @@ def test_trc_is_pose2sim_convention_and_calibration_axes_on_request(runs, tmp_pa
     # Pose2Sim's zup2yup: X, Y, Z = the calibration's y, z, x
     expect = res["markers"][..., [1, 2, 0]]
     np.testing.assert_allclose(t["points"], expect, atol=1e-6)
-    np.testing.assert_allclose(t["points"], res["markers"] @ opensim_from_user("z").T, atol=1e-6)
+    np.testing.assert_allclose(t["points"], res["markers"] @ opensim_axes("z").T, atol=1e-6)
     cal = tmp_path / "cal.trc"
     assert main(["-q", "export", str(runs["res_z"]), "--out", str(cal), "--trc-axes",
                  "calibration", "--units", "mm", "--points", "joints"]) == 0
@@ -135,3 +135,17 @@ def test_overlay_is_unchanged(runs):
             np.testing.assert_array_equal(a.frame(i), b.frame(i))
             assert b.frame_error(i) == pytest.approx(a.frame_error(i), abs=1e-9)
         assert np.isfinite(b.frame_error(0))
+
+
+def test_opensim_axes_put_up_on_y_and_are_rotations():
+    from gltrack.data.world import AXES, axis_vector
+
+    for up in AXES:
+        M = opensim_axes(up)
+        np.testing.assert_array_equal(M @ axis_vector(up), [0, 1, 0])
+        np.testing.assert_allclose(M @ M.T, np.eye(3))
+        assert np.linalg.det(M) == pytest.approx(1.0)
+    np.testing.assert_array_equal(opensim_axes("y"), np.eye(3))
+    np.testing.assert_array_equal(opensim_axes("z") @ [1, 2, 3], [2, 3, 1])  # Pose2Sim zup2yup
+    with pytest.raises(ValueError, match="up axis"):
+        opensim_axes("w")

@@ -505,10 +505,11 @@ class Dataset:
     def user_frame(self):
         """(3, 3) float64 ``R_user_from_internal``: ``X_user = R @ X_internal``.
 
-        Cameras, ground truth and results of a dataset are in gltrack's internal +Y-up frame;
-        ``meta.json``'s ``"world"`` record (written by ``gltrack ingest``, see
-        :mod:`gltrack.data.world`) gives the rotation back to the frame of the user's
-        calibration. Identity when the dataset has none (it was made in the internal frame).
+        Cameras and ground truth of a dataset are in gltrack's internal +Y-up frame (results
+        are written in the user's: :mod:`gltrack.data.results`); ``meta.json``'s ``"world"``
+        record (written by ``gltrack ingest``, see :mod:`gltrack.data.world`) gives the
+        rotation back to the frame of the user's calibration. Identity when the dataset has
+        none (it was made in the internal frame).
         """
         world = self.meta.get("world")
         if world is None:

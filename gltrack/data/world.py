@@ -139,20 +139,3 @@ def same_world(a, b, tol: float = 1e-9) -> bool:
     Rb = np.eye(3) if b is None else np.asarray(b["R_user_from_internal"], dtype=np.float64)
     return bool(np.abs(Ra - Rb).max() <= tol)
 
-
-def opensim_from_user(up: str) -> np.ndarray:
-    """(3, 3) proper rotation from the user's frame to the Y-up axes OpenSim and Pose2Sim use.
-
-    The user's axes are relabelled cyclically so that the up axis becomes +Y; for a Z-up frame
-    this is Pose2Sim's ``zup2yup`` (``X, Y, Z = y, z, x``: the calibration's y becomes X, its
-    z (up) Y and its x Z), which Pose2Sim applies to every TRC it writes from a (Z-up)
-    calibration, so a gltrack TRC lands on a Pose2Sim TRC of the same take. ``"y"`` gives the
-    identity; ``"x"`` gives ``X, Y, Z = z, x, y``; a negative up axis also negates the third
-    axis, which keeps the rotation proper.
-    """
-    axis_vector(up)  # validates the name
-    k = "xyz".index(up[-1])
-    rows = np.eye(3)[[(k + 2) % 3, k, (k + 1) % 3]]
-    if up.startswith("-"):
-        rows[1:] *= -1.0
-    return rows + 0.0  # no negative zeros

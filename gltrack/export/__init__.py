@@ -13,7 +13,7 @@ holds joints and markers in the user's frame and params in gltrack's internal +Y
 
 * **TRC** (:func:`trc_frame`): OpenSim is Y-up, and Pose2Sim writes every TRC from a Z-up
   calibration with its axes relabelled ``X, Y, Z = y, z, x`` (``zup2yup``) and ``Units m``;
-  gltrack writes the same (:func:`gltrack.data.world.opensim_from_user`, metres), so an OpenSim
+  gltrack writes the same (:func:`gltrack.export.trc.opensim_axes`, metres), so an OpenSim
   user loads a gltrack TRC next to a Pose2Sim TRC of the same take and they coincide.
   ``axes="calibration"`` writes the calibration's own axes instead. A result without a user
   frame (synthetic data) is written as before: gltrack's frame (already Y-up), millimetres.
@@ -31,8 +31,6 @@ import logging
 from pathlib import Path
 
 import numpy as np
-
-from gltrack.data.results import result_frame
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +117,16 @@ def _check_result_body(result: dict, body, where: str):
                                  "file does not belong to this result)")
 
 
+def result_frame(result: dict) -> np.ndarray:
+    """(3, 3) ``R_user_from_internal`` of a loaded result (its ``"world"`` record; identity
+    without one). The same as :func:`gltrack.data.results.result_frame`, which this layer may
+    not import."""
+    world = result.get("world")
+    if world is None:
+        return np.eye(3)
+    return np.asarray(world["R_user_from_internal"], dtype=np.float64)
+
+
 #: TRC axis choices of :func:`export_result` (see :func:`trc_frame`).
 TRC_AXES = ("opensim", "calibration")
 TRC_UNITS = ("m", "mm")
@@ -132,7 +140,7 @@ def trc_frame(result: dict, axes: str = "opensim") -> np.ndarray:
     result : dict, from :func:`gltrack.data.results.load_results`
     axes : {"opensim", "calibration"}
         ``"opensim"``: Y up as OpenSim wants, the user's axes relabelled as Pose2Sim does
-        (:func:`gltrack.data.world.opensim_from_user`; a result whose world record names no up
+        (:func:`gltrack.export.trc.opensim_axes`; a result whose world record names no up
         axis is written in gltrack's internal frame, which is Y-up too). ``"calibration"``: the
         user's calibration axes as they are (Z up for Pose2Sim and Qualisys).
 
@@ -140,7 +148,7 @@ def trc_frame(result: dict, axes: str = "opensim") -> np.ndarray:
     -------
     (3, 3) float64; the identity for results without a user frame (already Y-up).
     """
-    from gltrack.data.world import opensim_from_user
+    from .trc import opensim_axes
 
     if axes not in TRC_AXES:
         raise ValueError(f"TRC axes must be one of {TRC_AXES}, got {axes!r}")
@@ -148,7 +156,7 @@ def trc_frame(result: dict, axes: str = "opensim") -> np.ndarray:
     if world is None or axes == "calibration":
         return np.eye(3)
     if world.get("up"):
-        return opensim_from_user(world["up"])
+        return opensim_axes(world["up"])
     log.info("the result's world record names no up axis: TRC in gltrack's Y-up frame")
     return result_frame(result).T
 
@@ -225,8 +233,9 @@ def export_result(result: dict, out, fmt: str, body, fps: float, points: str = "
 from .bvh import params_to_bvh, write_params_bvh  # noqa: E402
 from .gltf import build_glb, write_glb  # noqa: E402
 from .jsonout import motion_document, write_json  # noqa: E402
-from .trc import format_trc, read_trc, write_trc  # noqa: E402
+from .trc import format_trc, opensim_axes, read_trc, write_trc  # noqa: E402
 
-__all__ = ["FORMATS", "TRC_AXES", "TRC_UNITS", "body_for_result", "export_result", "trc_frame", "params_to_bvh", "write_params_bvh",
+__all__ = ["FORMATS", "TRC_AXES", "TRC_UNITS", "body_for_result", "export_result",
+           "trc_frame", "result_frame", "opensim_axes", "params_to_bvh", "write_params_bvh",
            "build_glb", "write_glb", "motion_document", "write_json", "format_trc", "read_trc",
            "write_trc"]

@@ -35,6 +35,8 @@ def _coord(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if np.isfinite(x) else ""
 
 
+#: Up-axis names of a user frame (as :mod:`gltrack.data.world` writes them).
+UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 #: Length units a TRC file may be written in, and metres to them.
 UNITS = {"mm": 1000.0, "m": 1.0}
 
@@ -93,6 +95,33 @@ def format_trc(names, points, fps: float, frames=None, filename: str = "markers.
         lines.append(f"{f + 1}\t{f / fps:.5f}\t"
                      + "\t".join(_coord(v, digits) for v in row.reshape(-1)))
     return "\n".join(lines) + "\n"
+
+
+def opensim_axes(up: str) -> np.ndarray:
+    """(3, 3) proper rotation from a user's frame with up axis ``up`` to OpenSim's Y-up axes.
+
+    The user's axes are relabelled cyclically so that the up axis becomes +Y; for a Z-up frame
+    this is Pose2Sim's ``zup2yup`` (``X, Y, Z = y, z, x``: the calibration's y becomes X, its
+    z (up) Y and its x Z), which Pose2Sim applies to every TRC it writes from a (Z-up)
+    calibration, so a gltrack TRC lands on a Pose2Sim TRC of the same take. ``"y"`` gives the
+    identity; ``"x"`` gives ``X, Y, Z = z, x, y``; a negative up axis (``"-z"``) also negates
+    the third axis, which keeps the rotation proper.
+
+    Parameters
+    ----------
+    up : {"x", "y", "z", "-x", "-y", "-z"}
+
+    Returns
+    -------
+    (3, 3) float64, ``X_opensim = M @ X_user``
+    """
+    if up not in UP_AXES:
+        raise ValueError(f"up axis must be one of {UP_AXES}, got {up!r}")
+    k = "xyz".index(up[-1])
+    rows = np.eye(3)[[(k + 2) % 3, k, (k + 1) % 3]]
+    if up.startswith("-"):
+        rows[1:] *= -1.0
+    return rows + 0.0  # no negative zeros
 
 
 def write_trc(path, names, points, fps: float, frames=None, units: str = "mm") -> Path:
