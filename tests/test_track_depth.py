@@ -219,3 +219,60 @@ def test_decision_keeps_the_hypothesis_that_explains_the_frames():
     k, runs = _decide([a, b], range(3), [lambda tr, f: hooked.append(f)])
     assert k == 1 and a.seen == b.seen == [0, 1, 2] and hooked == [0, 1, 2, 0, 1, 2]
     assert [e.score for e, _ in runs[1]] == [5.5, 3.0, 4.0]
+
+
+def test_a_lost_track_is_restarted(tmp_path, caplog):
+    """The whole state turned 90 degrees at frame 2 (the tracker lost the body): the frames'
+    quality rises over the tracker's lost threshold, the runner re-starts it from its automatic
+    start, and the last frames are tracked again. With re-starts off the track stays lost."""
+    import logging
+
+    from gltrack.bench.faults import set_fault
+    from gltrack.track.runner import track
+
+    make_depth_dataset(tmp_path / "ds", n=14)
+    gt = Dataset.open(tmp_path / "ds").groundtruth()
+    errs = {}
+    for lost_frames in (0, 3):
+        out = tmp_path / f"res{lost_frames}"
+        with caplog.at_level(logging.INFO, logger="gltrack.track.runner"):
+            track(tmp_path / "ds", "hc", out, body="dataset", init="groundtruth",
+                  progress=False, decide_frames=4, lost_frames=lost_frames,
+                  hooks=[set_fault(2, np.pi / 2, 0.4)])
+        res = load_results(out)
+        errs[lost_frames] = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean(1)
+        frames = [json.loads(line) for line in (out / "frames.jsonl").read_text().splitlines()]
+        restarts = [f["info"]["restart"] for f in frames if "restart" in f["info"]]
+        assert all("quality" in f["info"] for f in frames)
+        if lost_frames:
+            assert restarts and restarts[0]["restarted"], restarts
+            assert "re-started from the automatic start" in caplog.text
+        else:
+            assert not restarts
+    assert errs[0][2] > 0.15  # the fault threw the body off
+    # without re-starts the climb half undoes it and stays there (about 0.1 m); re-started,
+    # the track is back on the body
+    assert errs[3][-4:].mean() < min(0.04, 0.5 * errs[0][-4:].mean()), (errs[0], errs[3])
+
+
+def test_a_wrong_start_file_is_checked_against_the_automatic_start(tmp_path):
+    """A start pose turned 90 degrees from the truth, given as a file: the runner also tracks
+    the automatic start's hypotheses and keeps the one that explains the first frames; without
+    the check the wrong start is tracked as given."""
+    from gltrack.body.model import BodyModel
+    from gltrack.track.runner import track
+
+    make_depth_dataset(tmp_path / "ds", n=10)
+    gt = Dataset.open(tmp_path / "ds").groundtruth()
+    x0 = np.array(gt["params"][0])
+    x0[BodyModel.build().dofs.index("pelvis_ry")] += np.pi / 2
+    np.save(tmp_path / "wrong.npy", x0)
+    err = {}
+    for check in (False, True):
+        out = tmp_path / f"res{check}"
+        track(tmp_path / "ds", "hc", out, body="dataset", init=str(tmp_path / "wrong.npy"),
+              progress=False, decide_frames=5, lost_frames=0, check_start=check)
+        res = load_results(out)
+        err[check] = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean(1)
+    assert err[False][0] > 0.1, err[False]  # the given start, as given
+    assert err[True][0] < 0.5 * err[False][0] and err[True].mean() < 0.06, err[True]

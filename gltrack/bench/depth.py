@@ -39,6 +39,7 @@ from gltrack.data.depth_clips import CLIPS, FPS, bench_range, synth_depth
 
 from . import machine_name, shared_dir
 from .faults import limb_fault
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,13 @@ LIMB_MARKERS = {
 }
 TARGET_MEAN_M = 0.05
 TARGET_FAILED = 0.01
+#: the honest protocol's targets (issue 12): hc+ep mean marker error and failed markers
+HONEST_MEAN_M = 0.06
+HONEST_FAILED = 0.02
+#: the wrong start: the first pose turned this much about the vertical; tracking must be back
+#: (mean marker error under 0.1 m, and staying there) within WRONG_START_FRAMES frames
+WRONG_START_RAD = 0.5 * np.pi
+WRONG_START_FRAMES = 15
 NO_WORSE_TOL_M = 0.002
 
 
@@ -81,16 +89,28 @@ def recovery_frames(errors, start: int, threshold: float = 0.1):
     return int(ok[0]) if len(ok) else None
 
 
-def _run(ds, method, opts, out, ctx, hooks=()):
+def settled_frames(errors, start: int = 0, threshold: float = 0.1):
+    """Frames from ``start`` until ``errors`` (per frame, metres) goes under ``threshold`` and
+    stays there to the end; None when the last frame is not under it."""
+    e = np.asarray(errors, dtype=np.float64)[start:]
+    over = np.nonzero(e >= threshold)[0]
+    if len(over) == 0:
+        return 0
+    return None if over[-1] == len(e) - 1 else int(over[-1]) + 1
+
+
+def _run(ds, method, opts, out, ctx, hooks=(), protocol=ORACLE, init=None):
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import load_results
     from gltrack.eval.metrics import evaluate
     from gltrack.track.runner import track
 
     t0 = time.perf_counter()
-    # the oracle protocol: the true first pose (and the dataset's true body)
+    args = protocol.track_args()
+    if init is not None:
+        args["init"] = init
     timing = track(ds, method, out, options=opts, overwrite=True, progress=False, ctx=ctx,
-                   hooks=hooks, init="groundtruth", body="dataset")
+                   hooks=hooks, **args)
     wall = time.perf_counter() - t0
     res = load_results(out)
     gt = Dataset.open(ds).groundtruth()
@@ -145,7 +165,75 @@ def _targets(clips: dict) -> dict:
     return out
 
 
-def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
+def _honest_targets(clips: dict) -> dict:
+    """The honest protocol's targets: hc+ep mean marker error and failed markers, wrong start."""
+    per = {}
+    for c, v in clips.items():
+        h = v.get("honest")
+        if not h:
+            continue
+        r = h["runs"].get("hc+ep/smoothed")
+        w = h.get("wrong_start", {})
+        per[c] = {"hc+ep_mean_m": r and r["marker_mean_m"],
+                  "hc+ep_failed": r and r["frac_markers_failed"],
+                  "mean_ok": bool(r and r["marker_mean_m"] <= HONEST_MEAN_M),
+                  "failed_ok": bool(r and r["frac_markers_failed"] <= HONEST_FAILED),
+                  "wrong_start_frames": w.get("frames"),
+                  "wrong_start_ok": w.get("frames") is not None
+                  and w["frames"] <= WRONG_START_FRAMES}
+    return {"per_clip": per, "all_met": bool(per) and all(
+        p["mean_ok"] and p["failed_ok"] and p["wrong_start_ok"] for p in per.values())}
+
+
+def _bench_honest(bvh, first, n, work, ctx, shared) -> dict:
+    """The honest protocol on one clip: the MakeHuman subject, the estimated body, the
+    automatic start (smoothed likelihood), and a start turned by :data:`WRONG_START_RAD`."""
+    from gltrack.body.model import body_from_meta
+    from gltrack.data.dataset import Dataset
+
+    ds = synth_depth(bvh, work / "data_honest", first, n, extra=HONEST.synth_flags(shared))
+    out = {"runs": {}}
+    for method in METHODS:
+        res_dir = work / f"{method}_honest"
+        row, res, gt = _run(ds, method, {"smooth": True}, res_dir, ctx, protocol=HONEST)
+        out["runs"][f"{method}/smoothed"] = row
+        if method == "hc+ep":
+            out["body_error"] = body_error_of(res_dir, ds)
+        log.info("honest %s: %s", method, row)
+    # a wrong start: the true first pose turned about the vertical, as a pose file
+    with Dataset.open(ds) as d:
+        x0 = np.array(d.groundtruth()["params"][0], dtype=np.float64)
+        dofs = body_from_meta(d.body).dofs
+    x0[dofs.index("pelvis_ry")] += WRONG_START_RAD
+    start = work / "wrong_start.npy"
+    np.save(start, x0)
+    row, res, gt = _run(ds, "hc+ep", {"smooth": True}, work / "hc+ep_wrong_start", ctx,
+                        protocol=HONEST, init=str(start))
+    f = np.asarray(res["frame"], dtype=int)
+    err = np.linalg.norm(res["markers"] - gt["markers"][f], axis=2).mean(1)
+    k = settled_frames(err)
+    restarts = _restarts(work / "hc+ep_wrong_start")
+    out["wrong_start"] = {
+        "radians": WRONG_START_RAD, "frames": k, "restarts": restarts,
+        "text": (f"back under 0.1 m for good after {k} frames" if k is not None
+                 else f"not back under 0.1 m by the last of {len(err)} frames"),
+        "marker_error_m": [round(float(e), 4) for e in err], "marker_mean_m": row["marker_mean_m"]}
+    return out
+
+
+def _restarts(result) -> list:
+    """The frames at which the runner re-started a lost tracker (``info["restart"]``)."""
+    import json
+
+    out = []
+    for line in (Path(result) / "frames.jsonl").read_text().splitlines():
+        r = json.loads(line).get("info", {}).get("restart")
+        if r:
+            out.append({"frame": r["frame"], "restarted": r["restarted"]})
+    return out
+
+
+def bench_depth(quick: bool = False, clips=None, out_dir=None, protocols=tuple(PROTOCOLS)) -> dict:
     """Run the depth-tracker bench.
 
     Parameters
@@ -156,19 +244,27 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
     clips : sequence of str, optional, subset of :data:`CLIPS` (default: all)
     out_dir : path, optional
         Keep datasets and results folders here; default: a temporary folder, deleted.
+    protocols : names of :data:`gltrack.bench.protocols.PROTOCOLS` to run: ``oracle`` (the
+        figures above: true body, true first pose, own mesh) and ``honest`` (MakeHuman
+        subject, estimated body, automatic start; smoothed likelihood only, plus the wrong
+        start)
 
     Returns
     -------
     dict (JSON-able): ``machine``, ``renderer``, ``frames``, ``options`` (tracker defaults),
     ``clips``: clip -> {``source_frames``, ``runs``: "method/likelihood" -> figures,
-    ``recovery``: method -> {``frames`` (int or None), ``text``, ``arm_error_m`` per frame}} or
-    {``skipped``: reason}; ``targets`` (see module docstring); ``seconds``.
+    ``recovery``: method -> {``frames`` (int or None), ``text``, ``arm_error_m`` per frame},
+    ``honest``: {``runs``, ``body_error``, ``wrong_start``}} or {``skipped``: reason};
+    ``targets`` (oracle, see module docstring); ``honest_targets``; ``seconds``.
     """
     from dataclasses import asdict
 
     from gltrack.gl.context import shared_context
     from gltrack.track.ep import EvidenceOptions
 
+    bad = [p for p in protocols if p not in PROTOCOLS]
+    if bad:
+        raise ValueError(f"unknown protocol(s) {bad}; choose from {list(PROTOCOLS)}")
     names = list(CLIPS) if clips is None else list(clips)
     unknown = [c for c in names if c not in CLIPS]
     if unknown:
@@ -177,7 +273,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
     liks = {"smoothed": True} if quick else dict(LIKELIHOODS)
     t_start = time.perf_counter()
     result = {"machine": machine_name(), "frames": n, "fps_data": FPS, "quick": bool(quick),
-              "options": asdict(EvidenceOptions()), "clips": {}}
+              "options": asdict(EvidenceOptions()), "protocols": list(protocols), "clips": {}}
     shared = shared_dir()
     if shared is None:
         reason = "../shared (or GLTRACK_SHARED) is absent: no mocap clips to synthesise"
@@ -196,9 +292,13 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
         if not bvh.is_file():
             result["clips"][clip] = {"skipped": f"{bvh} not found"}
             continue
+        entry = {"source_frames": list(bench_range(clip, n)), "runs": {}, "recovery": {}}
+        if "honest" in protocols:
+            entry["honest"] = _bench_honest(bvh, first, n, work / clip, ctx, shared)
+        if "oracle" not in protocols:
+            result["clips"][clip] = entry
+            continue
         ds = synth_depth(bvh, work / clip / "data", first, n)
-        entry = {"source_frames": list(bench_range(clip, n)),
-                 "runs": {}, "recovery": {}}
         unperturbed = {}
         for lik, smooth in liks.items():
             for method in METHODS:
@@ -229,6 +329,7 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None) -> dict:
         if not out_dir:
             shutil.rmtree(work, ignore_errors=True)
     result["targets"] = _targets(result["clips"])
+    result["honest_targets"] = _honest_targets(result["clips"])
     result["seconds"] = round(time.perf_counter() - t_start, 1)
     return result
 
@@ -253,6 +354,25 @@ def format_table(res: dict) -> str:
                          f"frame {r['perturbed_frame']}: {r['text']} (arm error after it "
                          f"{r['arm_error_after_m']:.3f} m, unperturbed "
                          f"{r['unperturbed_arm_error_after_m']:.3f} m)")
+    for clip, e in res["clips"].items():
+        h = e.get("honest")
+        if not h:
+            continue
+        for key, r in h["runs"].items():
+            m, lik = key.split("/")
+            lines.append(f"{clip:6s} {m:6s} {'honest':8s} {r['marker_mean_m']:7.3f} "
+                         f"{r['marker_max_m']:7.3f} {r['frac_markers_tracked']:6.3f} "
+                         f"{r['frac_markers_failed']:6.3f} {r['mean_joint_error_mm']:8.1f} "
+                         f"{r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}")
+        b = h.get("body_error")
+        if b:
+            lines.append(f"{clip:6s} honest body estimate: bones {b['mean_bone_mm']:.0f} mm mean, "
+                         f"{b['max_bone_mm']:.0f} mm max ({b['worst_bone']}), height "
+                         f"{b['height_mm']:+.0f} mm")
+        w = h["wrong_start"]
+        lines.append(f"{clip:6s} hc+ep  honest, start turned {np.degrees(w['radians']):.0f} deg: "
+                     f"{w['text']} (re-starts at frames "
+                     f"{[r['frame'] for r in w['restarts'] if r['restarted']]})")
     t = res.get("targets", {})
     if "all_met" in t:
         lines += ["", f"targets (smoothed): all met = {t['all_met']}; hardest clip {t['hardest_clip']}, "
@@ -261,4 +381,12 @@ def format_table(res: dict) -> str:
             lines.append(f"  {c}: hc+ep {p['hc+ep_mean_m']:.3f} m (<= {TARGET_MEAN_M}: {p['mean_ok']}), "
                          f"failed {p['hc+ep_failed']:.3f} (<= {TARGET_FAILED}: {p['failed_ok']}), "
                          f"hc {p['hc_mean_m']:.3f} m (no worse: {p['no_worse_than_hc']})")
+    h = res.get("honest_targets", {})
+    if h.get("per_clip"):
+        lines += ["", f"honest targets: all met = {h['all_met']}"]
+        for c, p in h["per_clip"].items():
+            lines.append(f"  {c}: hc+ep {p['hc+ep_mean_m']:.3f} m (<= {HONEST_MEAN_M}: "
+                         f"{p['mean_ok']}), failed {p['hc+ep_failed']:.3f} (<= {HONEST_FAILED}: "
+                         f"{p['failed_ok']}), wrong start back in {p['wrong_start_frames']} "
+                         f"frames (<= {WRONG_START_FRAMES}: {p['wrong_start_ok']})")
     return "\n".join(lines)

@@ -38,6 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_name, shared_dir
+from .depth import WRONG_START_RAD, settled_frames
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +55,8 @@ CLIPS = {
 ENV_CASES = {"table": ["--occluder", "table"], "distractor": ["--distractor", "box"]}
 #: Evaluations per particle and frame of HPS with the default pipelines (see module docstring).
 HPS_EVALS_PER_PARTICLE = 15
+#: the honest protocol's target for hps (full DOF, the bench budget): mean joint error, mm
+HONEST_HPS_MM = 40.0
 
 
 def method_configs(budget: int, n_partitions: int = 10) -> dict:
@@ -166,19 +170,25 @@ def _project_pose(x_full, names_full, dofs) -> np.ndarray:
 # runs
 
 
-def _run(ds_path, method, options, out, preset, start_pose, ctx, seed) -> dict:
+def _run(ds_path, method, options, out, preset, start_pose, ctx, seed,
+         protocol=ORACLE) -> dict:
+    """Track and score one run. ``start_pose`` (D,): the oracle's true first pose (in
+    ``preset``), or with the honest protocol a deliberately wrong start (None: automatic)."""
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import load_results
     from gltrack.eval.metrics import evaluate
     from gltrack.track.runner import track
 
-    init = Path(out).with_suffix(".init.npy")
-    init.parent.mkdir(parents=True, exist_ok=True)
-    np.save(init, start_pose)
+    args = protocol.track_args()
+    if start_pose is not None:
+        init = Path(out).with_suffix(".init.npy")
+        init.parent.mkdir(parents=True, exist_ok=True)
+        np.save(init, start_pose)
+        # the oracle's start is the truth: not second-guessed by the automatic start
+        args.update(init=str(init), check_start=protocol is not ORACLE)
     t0 = time.perf_counter()
-    timing = track(ds_path, method, out, options=options, init=str(init), overwrite=True,
-                   preset=preset, seed=seed, progress=False, ctx=ctx,
-                   body="dataset")
+    timing = track(ds_path, method, out, options=options, overwrite=True, preset=preset,
+                   seed=seed, progress=False, ctx=ctx, **args)
     secs = time.perf_counter() - t0
     ds = Dataset.open(ds_path)
     m = evaluate(load_results(out), ds.groundtruth())
@@ -186,8 +196,36 @@ def _run(ds_path, method, options, out, preset, start_pose, ctx, seed) -> dict:
     n = max(int(timing.get("frames", 0)), 1)
     return {"mean_joint_error_mm": round(float(m["mean_joint_error_mm"]), 1),
             "max_frame_error_mm": round(float(np.nanmax(m["per_frame"]["joint_error_mm"])), 1),
+            "joint_error_mm": [round(float(e), 1) for e in m["per_frame"]["joint_error_mm"]],
             "evaluations_per_frame": round(int(timing.get("evaluations", 0)) / n),
             "seconds_per_frame": round(secs / n, 2), "options": options}
+
+
+def _bench_honest(shared, bvh, src, work, budget, ctx, seed) -> dict:
+    """The honest protocol on one clip (MakeHuman subject, estimated body, automatic start):
+    ``hps`` at the budget, full DOF; and ``hps`` from the true first pose turned by
+    :data:`WRONG_START_RAD` (a pose file, which the runner checks against its automatic
+    start)."""
+    from gltrack.body.model import body_from_meta
+    from gltrack.data.dataset import Dataset
+
+    ds = synth(bvh, work / "honest_ds", src, seed=seed, extra=HONEST.synth_flags(shared))
+    method, opts = method_configs(budget)["hps"]
+    out = {"hps": _run(ds, method, opts, work / "honest_hps", "full", None, ctx, seed,
+                       protocol=HONEST)}
+    out["body_error"] = body_error_of(work / "honest_hps", ds)
+    with Dataset.open(ds) as d:
+        x0 = np.array(d.groundtruth()["params"][0], dtype=np.float64)
+        x0[body_from_meta(d.body).dofs.index("pelvis_ry")] += WRONG_START_RAD
+    row = _run(ds, method, opts, work / "honest_wrong_start", "full", x0, ctx, seed,
+               protocol=HONEST)
+    err = np.asarray(row["joint_error_mm"]) / 1000.0
+    k = settled_frames(err, 0, 0.1)
+    row["wrong_start_frames"] = k
+    row["text"] = (f"back under 0.1 m for good after {k} frames" if k is not None
+                   else f"not back under 0.1 m by the last of {len(err)} frames")
+    out["wrong_start"] = row
+    return out
 
 
 def _static_error(ds_path) -> float:
@@ -204,7 +242,8 @@ def _static_error(ds_path) -> float:
 
 def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = None,
                     frames: int | None = None, presets=("full", "38"), environment: bool = True,
-                    seed: int = 0, workdir=None, keep: bool = False) -> dict:
+                    seed: int = 0, workdir=None, keep: bool = False,
+                    protocols=tuple(PROTOCOLS)) -> dict:
     """Mean 3D joint error of SIR / APF / PS / HPS at equal evaluation budget.
 
     Parameters
@@ -218,11 +257,16 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
     seed : int, synthesis and tracking seed
     workdir : path, where datasets and results go (default a temporary folder)
     keep : keep ``workdir``'s contents
+    protocols : names of :data:`gltrack.bench.protocols.PROTOCOLS`: ``oracle`` (every method
+        and preset from the true first pose with the true body, own mesh) and ``honest``
+        (MakeHuman subject, estimated body, automatic start: ``hps`` full DOF, and a start
+        turned 90 degrees)
 
     Returns
     -------
     dict, JSON-serialisable: ``machine``, ``renderer``, ``budget``, ``frames``, ``clips``
-    (clip -> preset -> run -> figures, plus ``static_mm``), ``environment`` (case -> figures),
+    (clip -> preset -> run -> figures, plus ``static_mm`` and ``honest``: {``hps``,
+    ``body_error``, ``wrong_start``}), ``honest_targets``, ``environment`` (case -> figures),
     ``skipped`` (reasons), ``seconds``.
     """
     from gltrack.gl.context import shared_context
@@ -231,11 +275,14 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
     budget = int(budget or (800 if quick else 2000))
     n_frames = int(frames or (5 if quick else 15))
     clips = list(clips or CLIPS)
+    bad = [p for p in protocols if p not in PROTOCOLS]
+    if bad:
+        raise ValueError(f"unknown protocol(s) {bad}; choose from {list(PROTOCOLS)}")
     unknown = [c for c in clips if c not in CLIPS]
     if unknown:
         raise ValueError(f"unknown clips {unknown}; choose from {', '.join(CLIPS)}")
     res = {"budget": budget, "frames": n_frames, "fps": 30.0, "clips": {}, "environment": {},
-           "skipped": []}
+           "skipped": [], "protocols": list(protocols)}
     shared = shared_dir()
     if shared is None:
         res["skipped"].append("../shared (or GLTRACK_SHARED) is absent: no mocap clips")
@@ -254,17 +301,42 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
             res["skipped"].append(f"{clip}: {bvh} missing")
             continue
         src = (first, first + 4 * n_frames)  # 120 frames/s source -> n_frames at 30 frames/s
-        ds = work / f"{clip}_ds"
-        t0 = time.perf_counter()
-        synth(bvh, ds, src, seed=seed)
-        log.info("%s: dataset in %.1f s", clip, time.perf_counter() - t0)
-        res["clips"][clip] = _bench_clip(ds, work / clip, budget, presets, ctx, seed)
-    if environment and "walk" in CLIPS:
+        entry = {}
+        if "oracle" in protocols:
+            ds = work / f"{clip}_ds"
+            t0 = time.perf_counter()
+            synth(bvh, ds, src, seed=seed)
+            log.info("%s: dataset in %.1f s", clip, time.perf_counter() - t0)
+            entry = _bench_clip(ds, work / clip, budget, presets, ctx, seed)
+        if "honest" in protocols:
+            entry["honest"] = _bench_honest(shared, bvh, src, work / clip, budget, ctx, seed)
+        res["clips"][clip] = entry
+    res["honest_targets"] = _honest_targets(res["clips"])
+    if environment and "oracle" in protocols and "walk" in CLIPS:
         res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
         if own_dir and not keep:
             shutil.rmtree(work, ignore_errors=True)
     res["seconds"] = round(time.perf_counter() - t_start, 1)
     return res
+
+
+def _honest_targets(clips: dict) -> dict:
+    """hps (honest, full DOF) mean joint error <= :data:`HONEST_HPS_MM`; the wrong start back
+    under 0.1 m within :data:`gltrack.bench.depth.WRONG_START_FRAMES` frames."""
+    from .depth import WRONG_START_FRAMES
+
+    per = {}
+    for c, e in clips.items():
+        h = e.get("honest")
+        if not h:
+            continue
+        k = h["wrong_start"]["wrong_start_frames"]
+        per[c] = {"hps_mm": h["hps"]["mean_joint_error_mm"],
+                  "hps_ok": h["hps"]["mean_joint_error_mm"] <= HONEST_HPS_MM,
+                  "wrong_start_frames": k,
+                  "wrong_start_ok": k is not None and k <= WRONG_START_FRAMES}
+    return {"per_clip": per, "all_met": bool(per) and all(
+        p["hps_ok"] and p["wrong_start_ok"] for p in per.values())}
 
 
 def _start_pose(ds_path, dofs_names_full, body):
@@ -331,10 +403,25 @@ def table(res: dict) -> str:
     lines.append(f"{'clip':8s} {'dof':5s} {'static':>7s} " + " ".join(f"{n:>7s}" for n in names))
     for clip, r in res.get("clips", {}).items():
         for preset, runs in r.items():
-            if preset == "static_mm":
+            if preset in ("static_mm", "honest"):
                 continue
             lines.append(f"{clip:8s} {preset:5s} {r['static_mm']:7.1f} " + " ".join(
                 f"{runs[n]['mean_joint_error_mm']:7.1f}" if n in runs else "    n/a" for n in names))
+    for clip, r in res.get("clips", {}).items():
+        h = r.get("honest")
+        if not h:
+            continue
+        b, w = h.get("body_error"), h["wrong_start"]
+        lines.append(f"{clip:8s} honest hps {h['hps']['mean_joint_error_mm']:.1f} mm "
+                     f"(<= {HONEST_HPS_MM:g}); start turned 90 deg: {w['text']} "
+                     f"({w['mean_joint_error_mm']:.1f} mm)")
+        if b:
+            lines.append(f"{clip:8s} honest body estimate: bones {b['mean_bone_mm']:.0f} mm mean, "
+                         f"{b['max_bone_mm']:.0f} mm max ({b['worst_bone']}), height "
+                         f"{b['height_mm']:+.0f} mm")
+    t = res.get("honest_targets", {})
+    if t.get("per_clip"):
+        lines.append(f"honest targets all met: {t['all_met']}")
     for case, r in res.get("environment", {}).items():
         lines.append(f"env {case:10s} static {r['static_mm']:.1f}  hps with layers "
                      f"{r['with_layers']['mean_joint_error_mm']:.1f}  without "

@@ -16,6 +16,10 @@ def add_arguments(p):
     p.add_argument("--quick", action="store_true", help="fewer candidates and repeats (noisier)")
     p.add_argument("--no-baseline", action="store_true", help="skip the pyrender baseline")
     p.add_argument("--seed", type=int, default=0, help="random seed for the candidate poses")
+    p.add_argument("--protocol", choices=("both", "oracle", "honest"), default="both",
+                   help="depth / multiview: 'oracle' = true body, true first pose, the "
+                        "tracker's own mesh as the subject; 'honest' = estimated body, automatic "
+                        "start, a MakeHuman subject; 'both' (default) side by side")
 
 
 def _fmt(value, spec, width):
@@ -39,6 +43,10 @@ def _table(res):
     return "\n".join(lines)
 
 
+def _protocols(args) -> tuple:
+    return ("oracle", "honest") if args.protocol == "both" else (args.protocol,)
+
+
 def _suite(name):
     """(run(args) -> results dict, format(results) -> text) of bench suite ``name``."""
     if name == "engine":
@@ -49,11 +57,11 @@ def _suite(name):
     if name == "depth":
         from gltrack.bench.depth import bench_depth, format_table
 
-        return (lambda a: bench_depth(quick=a.quick)), format_table
+        return (lambda a: bench_depth(quick=a.quick, protocols=_protocols(a))), format_table
     if name == "multiview":
         from gltrack.bench.multiview import bench_multiview, table
 
-        return (lambda a: bench_multiview(quick=a.quick)), table
+        return (lambda a: bench_multiview(quick=a.quick, protocols=_protocols(a))), table
     from gltrack.bench.vlmm import bench_vlmm, format_table
 
     return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed)), format_table

@@ -43,6 +43,10 @@ def add_arguments(p):
                         "folder) or by hand")
     p.add_argument("--dof", choices=["full", "38", "25"],
                    help="DOF preset overriding the --body record's")
+    p.add_argument("--lost-frames", type=int, default=3, metavar="N",
+                   help="re-start a tracker whose fit stays worse than its lost threshold for N "
+                        "frames in a row (the current track and the automatic start are each "
+                        "tracked a few frames, the better is kept); 0 never re-starts")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results folder")
     p.add_argument("--seed", type=int, default=0, help="random seed (particle filters)")
@@ -107,10 +111,12 @@ def run(args):
     from gltrack.track.runner import track
 
     options = merge_flags(load_config(args.config, UsageError), args, UsageError)
+    if args.lost_frames < 0:
+        raise UsageError(f"--lost-frames must be at least 0, got {args.lost_frames}")
     timing = track(args.dataset, args.method, args.out, options=options,
                    init=args.init, resume=args.resume, overwrite=args.overwrite,
                    frames=_frames(args.frames, UsageError), preset=args.dof, seed=args.seed,
-                   progress=not args.quiet, body=args.body)
+                   progress=not args.quiet, body=args.body, lost_frames=args.lost_frames)
     fps = timing.get("fps")
     print(f"tracked {timing['frames']} frames with {args.method} in {timing['seconds']:.1f} s "
           f"({fps:.2f} frames/s, {timing['evaluations']} candidate evaluations) -> {args.out}"

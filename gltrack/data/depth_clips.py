@@ -33,7 +33,7 @@ TRAIN_RANGES = {
 FPS = 30.0
 
 
-def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) -> Path:
+def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0, extra=()) -> Path:
     """Synthesise a depth dataset of a BVH clip (``gltrack synth --rig depth``).
 
     Runs in a subprocess: the simulator needs its own GL platform.
@@ -45,6 +45,7 @@ def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) ->
     first : int, first source frame
     frames : int, number of frames at :data:`FPS` frames/s
     seed : int, sensor-noise seed
+    extra : sequence of str, further ``gltrack synth`` arguments (e.g. ``--mesh SUBJECT.glb``)
 
     Returns
     -------
@@ -58,7 +59,7 @@ def synth_depth(bvh: Path, out: Path, first: int, frames: int, seed: int = 0) ->
     last = first + int(round(frames * SOURCE_FPS / FPS))
     cmd = [sys.executable, "-m", "gltrack", "-q", "synth", "--motion", str(bvh), "--rig", "depth",
            "--out", str(out), "--frames", f"{first}:{last}", "--fps", str(FPS), "--seed", str(seed),
-           "--overwrite"]
+           "--overwrite", *extra]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise RuntimeError(f"gltrack synth failed ({proc.returncode}): "

@@ -149,6 +149,9 @@ class DepthLikelihood:
     engine : ScoringEngine or None (built on the first :meth:`set_view` when cropping)
     view : Camera, the camera the tile shows
     weight : float, tile-pixel area at the subject's depth over ``area_unit``
+    area : float, the observed foreground of the uploaded view in cost units (its pixels times
+        ``weight``): a cost over ``area`` is the share of the seen person the pose leaves
+        unexplained (plus the model's pixels where nothing was seen)
     """
 
     def __init__(self, ctx, body, pinhole: Camera, *, tile: int, params: DepthCostParams,
@@ -158,7 +161,7 @@ class DepthLikelihood:
         self.programs = programs
         self.engine = None
         self.view = None
-        self.weight = 1.0
+        self.weight, self.area = 1.0, 0.0
         self._reduction = "auto"
         if not crop:
             self._make_engine(pinhole)
@@ -186,13 +189,19 @@ class DepthLikelihood:
             else:  # keeps the compiled programs and buffers: only the window moves
                 self.engine.set_camera(0, cam)
                 self.view = cam
-            self.engine.set_depth(0, resample_depth(z, pin, cam))
+            zt = resample_depth(z, pin, cam)
+            self.engine.set_depth(0, zt)
         else:
+            zt = z
             self.engine.set_depth(0, z)
             cam = self.engine.views[0].cam_tile
             zc = float(np.median((points @ pin.R.T + pin.t)[:, 2])) if points is not None else 3.0
         a_px = zc * zc / (cam.fx * cam.fy)
         self.weight = a_px / self.area_unit if self.area_unit > 0 else 1.0
+        # the seen person's area in cost units: a pixel costs at most 1 (c_obs_only, c_model_only)
+        # (the tile's pixels: the full image is scaled to the tile when not cropping)
+        tile_px = cam.width * cam.height / float(zt.shape[0] * zt.shape[1])
+        self.area = float(np.count_nonzero(zt > 0)) * tile_px * self.weight
 
     def cost(self, X: np.ndarray) -> np.ndarray:
         """(N,) depth cost of N poses (N, D) against the uploaded view, in ``area_unit``s."""

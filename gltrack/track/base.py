@@ -65,6 +65,22 @@ class Tracker:
         """
         raise NotImplementedError
 
+    #: ``info["quality"]`` above which a frame counts as lost (lower is better; see
+    #: :meth:`lost_threshold`); None: the tracker reports no quality and is never re-started
+    lost_quality: float | None = None
+    #: True when the tracker recovers by itself (the runner then leaves it alone)
+    recovers_itself: bool = False
+    #: the quality is a share of the seen person, so the runner may also judge it against the
+    #: recent good frames (:class:`gltrack.track.lost.LossWatch`)
+    relative_loss: bool = True
+
+    def lost_threshold(self) -> float | None:
+        """The quality figure above which a frame counts as lost (``info["quality"]``), or None.
+
+        The runner re-starts a tracker whose frames stay above it
+        (:func:`gltrack.track.runner.track`, ``lost_frames``)."""
+        return None if self.recovers_itself else self.lost_quality
+
     def auto_init(self, frame: int) -> np.ndarray:
         """(D,) the pose that best explains ``frame``, found without any pose given."""
         return self.start_hypotheses(frame)[0]

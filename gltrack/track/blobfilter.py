@@ -150,6 +150,12 @@ class CondensationTracker(Tracker):
         self.est = None
 
     # -- initialisation -----------------------------------------------------------------------
+    #: KL nats are no share of the person: only the absolute ``lost_threshold`` applies
+    relative_loss = False
+
+    def lost_threshold(self):
+        return self.opt.lost_threshold  # best-particle KL, nats
+
     def start_hypotheses(self, frame):
         return [self.auto_init(frame)]
 
@@ -199,6 +205,7 @@ class CondensationTracker(Tracker):
         self.colours.update(frame, est)
         self.P = res.particles
         info = {"fit_loglik": ev.fit_loglik, "lost": score > self.opt.lost_threshold,
+                "quality": score,
                 "stage_seconds": stage_seconds(ev, time.perf_counter() - t0)}
         return FrameEstimate(est, score, res.evaluations + 1, info)
 

@@ -164,8 +164,9 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
             nearest=self.opt.nearest_part)
         self.accepted_total += len(ep.accepted)
         self._accept(ep.x)
-        info = {"detections": int(len(det.points)), "accepted": [a["part"] for a in ep.accepted]}
-        return FrameEstimate(ep.x, float(ep.cost), evals + int(ep.evaluations), info)
+        info = {"detections": int(len(det.points)), "accepted": [a["part"] for a in ep.accepted],
+                "quality": self.quality(ep.x)}
+        return FrameEstimate(ep.x, float(ep.cost), evals + int(ep.evaluations) + 1, info)
 
 
 class EvidenceOnlyDepthTracker(EvidenceDepthTracker):

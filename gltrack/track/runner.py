@@ -22,16 +22,28 @@ from gltrack.export.bvh import write_params_bvh
 
 from .bodies import resolve_body
 from .base import NoPersonError
+from .lost import LossWatch
 from .registry import method as lookup
 
 log = logging.getLogger(__name__)
 
-def initial_poses(init, dataset, body, tracker, start: int) -> list[np.ndarray]:
-    """The poses (D,) to start from, best first: one for ``"groundtruth"`` or a pose file, the
-    tracker's start hypotheses for ``"auto"``."""
+def initial_poses(init, dataset, body, tracker, start: int, check: bool = True) -> list[np.ndarray]:
+    """The poses (D,) to start from, best first: the tracker's start hypotheses for ``"auto"``;
+    the true pose for ``"groundtruth"``; for a pose file, its pose followed by the automatic
+    start's hypotheses (a given start may be wrong: the runner tracks each for a few frames
+    and keeps the best, see :func:`track`); ``check`` False: the pose file's pose alone."""
     if init == "auto":
         return tracker.start_hypotheses(start)
-    return [initial_pose(init, dataset, body, tracker, start)]
+    given = initial_pose(init, dataset, body, tracker, start)
+    if init == "groundtruth" or not check:
+        return [given]
+    try:
+        return [given, *tracker.start_hypotheses(start)]
+    except NoPersonError as exc:
+        log.warning("frame %d: the given start pose cannot be checked (%s)", start, exc)
+    except ValueError as exc:  # a method without an automatic start
+        log.info("the given start pose is not checked: %s", exc)
+    return [given]
 
 
 def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
@@ -63,12 +75,13 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
     return arr
 
 
-def _first_pose(init, dataset, body, tracker, start: int, stop: int, max_search: int):
+def _first_pose(init, dataset, body, tracker, start: int, stop: int, max_search: int,
+                check: bool = True):
     """(frame, poses) to start from; an automatic start that finds no person tries the next
     frames (up to ``max_search`` of them) with a warning, then gives up naming the range."""
     for f in range(start, min(stop, start + max(int(max_search), 1))):
         try:
-            return f, initial_poses(init, dataset, body, tracker, f)
+            return f, initial_poses(init, dataset, body, tracker, f, check)
         except NoPersonError as exc:
             log.warning("%s; trying frame %d", exc, f + 1)
     raise ValueError(f"{dataset.path}: no person found to start from in frames {start}.."
@@ -119,18 +132,45 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks):
     return everyone[k], dict(zip(frames, runs[k]))
 
 
+def _restart(tracker, make, frame: int, frames, hooks):
+    """Re-start a tracker that lost the body: its automatic start on ``frame`` gives new
+    hypotheses, each started on a new tracker (``make(k)``); they and the lost tracker (which
+    may only have been through a hard stretch) track ``frames`` and the best is kept.
+
+    Returns (tracker, decided) as :func:`_choose_start`; the lost tracker itself when the
+    automatic start finds nobody.
+    """
+    try:
+        starts = tracker.start_hypotheses(frame)
+    except NoPersonError as exc:
+        log.warning("frame %d: lost, and no person to re-start from (%s)", frame, exc)
+        return tracker, {}
+    # hypothesis 0 is the lost tracker, going on from its own state
+    kept, decided = _choose_start(tracker, make, [None, *starts], frame, frames, hooks)
+    first = min(decided) if decided else None
+    if first is not None:
+        restarted = kept is not tracker
+        decided[first][0].info["restart"] = {"frame": frame, "hypotheses": len(starts),
+                                              "restarted": restarted}
+        log.warning("frame %d: the body looked lost for a while; %s", frame,
+                    "re-started from the automatic start" if restarted
+                    else "the current track explains the next frames best and goes on")
+    return kept, decided
+
+
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
           hooks=(), body: str = "estimate", max_search: int = 30,
-          decide_frames: int = 10) -> dict:
+          decide_frames: int = 10, lost_frames: int = 3, check_start: bool = True) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
     ----------
     options : dict, tracker options (``--config`` table); unknown keys are errors
     init : "auto" (find the body from nothing, default), "groundtruth" (the true first pose:
-        an oracle, for ablations) or a pose file
+        an oracle, for ablations) or a pose file (checked against the automatic start: both
+        are tracked ``decide_frames`` frames and the better is kept)
     resume : continue an interrupted run in ``out``
     frames : (start, stop), optional sub-range of the dataset's frames
     preset : DOF preset overriding the body record's
@@ -146,6 +186,14 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         body and its turned-round twin fit one frame about equally well), each is tracked this
         many frames and the one with the lower mean score is kept (its frames are the ones
         written); 0 keeps the first hypothesis
+    lost_frames : a tracker whose frames' quality (``info["quality"]``) stays worse than its
+        lost limit (:class:`gltrack.track.lost.LossWatch`: the tracker's
+        :meth:`~gltrack.track.base.Tracker.lost_threshold`, or twice the recent good frames'
+        quality, whichever is lower) for this many frames in a row is
+        re-started: its automatic start on that frame and the current track are each tracked
+        ``decide_frames`` frames and the best is kept (:func:`_restart`); 0 never re-starts
+    check_start : with a pose file as ``init``, also try the automatic start (False: trust the
+        file, e.g. a bench's true first pose in another DOF preset)
 
     Returns
     -------
@@ -185,7 +233,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             log.info("resuming after frame %d", first - 1)
         else:
             t0 = time.perf_counter()
-            first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search)
+            first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
+                                        check_start)
             tracker.start(first, starts[0])
             if len(starts) > 1 and decide_frames > 0:
                 # each other hypothesis gets its own tracker and a generator derived from the
@@ -198,12 +247,21 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                      time.perf_counter() - t0)
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
                    disable=not progress, leave=False)
+        watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
         for f in bar:
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
             writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
                           est.score, est.evaluations, secs, info=est.info)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
+            bad = watch.update(est.info.get("quality"))
+            if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
+                watch.reset()
+                make = (lambda k, f=f: m.tracker(ds, body, ctx, opts,
+                                                 np.random.default_rng([seed, f, k])))
+                tracker, decided = _restart(tracker, make, f,
+                                            range(f + 1, min(stop, f + 1 + max(decide_frames, 1))),
+                                            hooks)
         timing = writer.finish()
         arrays = writer.arrays()
         write_params_bvh(Path(out) / "poses.bvh", body, arrays["params"], ds.fps)

@@ -112,6 +112,7 @@ class VlmmTracker(Tracker):
     """Particle filter with the learnt behaviour prior (see module docstring)."""
 
     method = "vlmm"
+    recovers_itself = True  # the paper's recovery: particles re-drawn from the clusters
 
     def __init__(self, dataset, body, ctx, options: VlmmOptions | None = None, rng=None):
         opt = self.opt = (options or VlmmOptions()).validate()

@@ -1,0 +1,80 @@
+"""The two protocols every tracker bench reports side by side (issue 12).
+
+``oracle``
+    What the project measured first: the body the data was made with (``--body dataset``), the
+    true first pose (``--init groundtruth``) and the subject drawn with the tracker's own
+    procedural mesh. An upper bound, for ablations.
+``honest``
+    What a user with a real recording gets: the body estimated from the first frames
+    (``--body estimate``), the automatic start (``--init auto``) and the subject drawn with a
+    rigged mesh nobody on the project wrote (:data:`SUBJECT_MESH`, MakeHuman, fitted to the
+    clip's skeleton by ``gltrack synth --mesh``), so the tracker's surface never matches it
+    exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+#: The honest protocol's subject, relative to ../shared.
+SUBJECT_MESH = "meshes/makehuman_cmu_male1591.glb"
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """How a bench run starts and what it is given.
+
+    Attributes
+    ----------
+    name : "oracle" or "honest"
+    init : ``track(init=...)``: "groundtruth" or "auto"
+    body : ``track(body=...)``: "dataset" or "estimate"
+    subject : mesh the simulator draws the subject with, relative to ../shared (None: the
+        tracker's own procedural mesh)
+    """
+
+    name: str
+    init: str
+    body: str
+    subject: str | None
+
+    def synth_flags(self, shared) -> list:
+        """Extra ``gltrack synth`` arguments of this protocol's datasets.
+
+        Raises
+        ------
+        FileNotFoundError
+            The subject mesh is not in ``shared``.
+        """
+        if self.subject is None:
+            return []
+        mesh = Path(shared) / self.subject
+        if not mesh.is_file():
+            raise FileNotFoundError(f"{mesh}: the honest protocol's subject mesh is missing")
+        return ["--mesh", str(mesh)]
+
+    def track_args(self) -> dict:
+        """``gltrack.track.runner.track`` keyword arguments of this protocol."""
+        return {"init": self.init, "body": self.body}
+
+
+ORACLE = Protocol("oracle", init="groundtruth", body="dataset", subject=None)
+HONEST = Protocol("honest", init="auto", body="estimate", subject=SUBJECT_MESH)
+PROTOCOLS = {p.name: p for p in (ORACLE, HONEST)}
+
+
+def body_error_of(result, dataset) -> dict | None:
+    """Error of the body a results folder records against a synthetic dataset's body record
+    (:func:`gltrack.body.measure.body_error`; millimetres), or None without either."""
+    from gltrack.body.measure import body_error
+    from gltrack.body.model import body_from_meta
+    from gltrack.data.dataset import Dataset
+    from gltrack.data.results import recorded_body
+
+    rec = recorded_body(result)
+    with Dataset.open(dataset) as ds:
+        meta = ds.body
+    if rec is None or meta is None:
+        return None
+    e = body_error(rec[0].skeleton, body_from_meta(meta).skeleton)
+    return {k: e[k] for k in ("mean_bone_mm", "max_bone_mm", "worst_bone", "height_mm")}
