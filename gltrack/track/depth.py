@@ -48,6 +48,7 @@ import numpy as np
 from gltrack.body.poses import canonical_poses
 from gltrack.gl.programs import ProgramCache
 from gltrack.observe.blobs import BlobModel, place_on_centroid
+from gltrack.observe.people import pick_person
 from gltrack.observe.depth import foreground_points
 from gltrack.observe.depth_view import DepthLikelihood, DepthObservation
 from gltrack.render.engine import DepthCostParams
@@ -372,7 +373,10 @@ class HillClimbDepthTracker(Tracker):
         if len(pts) < 50:
             raise NoPersonError(f"frame {frame}: too few foreground depth pixels ({len(pts)}) to "
                                 "initialise: no person in front of the camera?")
-        c = pts.mean(axis=0)
+        # the largest connected surface (pixels weighted by their area, ~ depth^2): a second
+        # person is not averaged in
+        zc = self.obs.pinhole.depth_of(pts)
+        c = pick_person(pts, zc * zc, where=f"frame {frame}").centroid
         ray = c - self.obs.pinhole.center
         c = c + o.init_depth_offset * ray / np.linalg.norm(ray)
         _, library = canonical_poses(d, self.body.skeleton)

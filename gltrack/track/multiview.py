@@ -68,6 +68,7 @@ from gltrack.body.poses import canonical_poses
 from gltrack.motion.vlmm_prior import vlmm_prior
 from gltrack.observe.blob_evidence import default_volume
 from gltrack.observe.blobs import BlobModel, place_on_centroid
+from gltrack.observe.people import pick_person
 from gltrack.observe.multiview import FOREGROUNDS, MultiviewObservation, SilhouetteLikelihood
 from gltrack.observe.voxels import carve
 from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, PartitionedSampler,
@@ -361,7 +362,8 @@ class MultiviewTracker(Tracker):
                                 f"the tracking volume {volume.round(2).tolist()}: no person to "
                                 "start from")
         pts, vol = hull.points(max_size=0.06)
-        centroid = (pts * vol[:, None]).sum(axis=0) / vol.sum()
+        # the largest connected part of the hull: a second person is not averaged in
+        centroid = pick_person(pts, vol, where=f"frame {frame}").centroid
         _, library = canonical_poses(d, self.body.skeleton)
         if self.prior is not None:
             protos = np.repeat(d.zero(self.body.skeleton)[None], len(self.prior.model.gmm.means), 0)

@@ -126,7 +126,7 @@ class VlmmTracker(Tracker):
         # the voxels place the candidates of initialisation and recovery in both evaluations
         self.evidence = opt.evidence(dataset, body)
         self.cameras = self.evidence.cameras
-        self.lost_threshold = opt.lost_threshold or LOST_DEFAULT[opt.evaluation]
+        self.lost_limit = opt.lost_threshold or LOST_DEFAULT[opt.evaluation]
         self.silhouette = None
         if opt.evaluation == "silhouette":
             self.silhouette = SilhouetteLikelihood(
@@ -249,7 +249,7 @@ class VlmmTracker(Tracker):
         evals = res.evaluations
         best_cost = float(costs[-1].min())
         q = self.quality(best_cost)
-        lost = q > self.lost_threshold
+        lost = q > self.lost_limit
         self._bad = self._bad + 1 if lost else 0
         info = {"quality": q, "lost": bool(lost),
                 "clusters": int(len(np.unique(self.prior.clusters())))}
