@@ -17,7 +17,7 @@ import logging
 import cv2
 import numpy as np
 
-from gltrack.render.engine import ScoringEngine
+from gltrack.render.engine import ScoringEngine, silhouette_iou
 
 from . import hls
 from .appearance import AppearanceModel
@@ -119,6 +119,7 @@ class SilhouetteLikelihood:
     appearance : AppearanceModel or None
     area : float, unblocked foreground pixels of the current frame at tile resolution, summed
         over the cameras (at least 1): the scale of ``e_S``
+    areas : (C,) float, the same per camera (may be 0)
     """
 
     def __init__(self, ctx, body, observation: MultiviewObservation, *, tile: int = 64,
@@ -134,6 +135,7 @@ class SilhouetteLikelihood:
         self.use_appearance = bool(appearance)
         self.appearance = None
         self.area = 1.0
+        self.areas = np.zeros(len(observation.pinholes))
         self.frame = None
 
     @property
@@ -186,10 +188,11 @@ class SilhouetteLikelihood:
             fgs.append(fg)
             blocks.append(block)
         T = self.engine.tile
-        self.area = max(1.0, float(sum(
+        self.areas = np.array([
             np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
                                         interpolation=cv2.INTER_NEAREST_EXACT))
-            for f, b in zip(fgs, blocks))))
+            for f, b in zip(fgs, blocks)], dtype=np.float64)
+        self.area = max(1.0, float(self.areas.sum()))
         self.frame = frame
         return images, fgs, blocks
 
@@ -199,6 +202,28 @@ class SilhouetteLikelihood:
         e_s = r[:, :, 1].sum(axis=1)
         c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
         return e_s, c_a
+
+    def scores_and_iou(self, x: np.ndarray):
+        """:meth:`scores` of one pose plus its per-camera silhouette IoU, in one engine call.
+
+        The IoU is counted at the engine's tile resolution over the unblocked pixels (those
+        ``e_S`` counts): ``|M & F| / |M | F|`` from the ``model`` channel M, the XOR count X
+        and the foreground area F of each camera (:func:`gltrack.render.engine.silhouette_iou`).
+
+        Parameters
+        ----------
+        x : (D,) pose parameters
+
+        Returns
+        -------
+        e_s : float, silhouette XOR summed over cameras (px); c_a : float or None;
+        iou : (C,) float in 0..1, one per camera (1 where model and foreground are both empty)
+        """
+        r = self.engine.score(self.body.skinning(np.asarray(x, dtype=np.float64)[None]),
+                              [*self.channels, "model"])[0]
+        iou = silhouette_iou(r[:, 0], self.areas, r[:, 1])
+        c_a = float(r[:, 2].sum()) if self.appearance is not None else None
+        return float(r[:, 1].sum()), c_a, iou
 
     def release(self) -> None:
         if self.env is not None:

@@ -54,7 +54,11 @@ Estimate (``estimate``): ``"mean"`` (default), the weighted mean of the final we
 are smoother), or ``"best"``, the particle of highest weight.
 
 Score of a frame: the summed silhouette XOR count of the estimate (one extra evaluation, included in
-``FrameEstimate.evaluations``).
+``FrameEstimate.evaluations``). The same engine call counts the estimate's pixels in every camera
+(channel ``model``), so ``info`` also carries ``"iou"``: the per-camera silhouette IoU of the
+estimate against the frame's foreground, at tile resolution over the unblocked pixels (a quality
+figure that needs no ground truth; ``gltrack eval`` summarises it). ``info["quality"]`` (XOR over
+foreground pixels) is what the runner's loss detection reads.
 """
 from __future__ import annotations
 
@@ -425,19 +429,20 @@ class MultiviewTracker(Tracker):
         x = res.estimate if self.opt.estimate == "mean" else res.best
         x = self.body.dofs.validate(x)[0]
         self.velocity, self.last = x - self.last, x
-        e_s, c_a = self.scores(x[None])
+        e_s, c_a, iou = self.likelihood.scores_and_iou(x)
         self.frames_done += 1
         k = self.opt.appearance_refine
         if self.appearance is not None and k and self.frames_done % k == 0:
             self.likelihood.refine_appearance(x, images, fgs)
-        info = {"e_s": float(e_s[0]), "foreground_px": self.area,
-                "quality": float(e_s[0]) / max(self.area, 1.0),
+        info = {"e_s": e_s, "foreground_px": self.area,
+                "quality": e_s / max(self.area, 1.0),
+                "iou": [round(float(v), 4) for v in iou],
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if c_a is not None:
-            info["c_a"] = float(c_a[0])
+            info["c_a"] = c_a
         if "pipeline_weight" in res.info:
             info["pipeline_weight"] = res.info["pipeline_weight"]
-        return FrameEstimate(x, float(e_s[0]), int(res.evaluations) + 1, info)
+        return FrameEstimate(x, e_s, int(res.evaluations) + 1, info)
 
     def close(self):
         self.likelihood.release()
