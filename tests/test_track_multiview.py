@@ -6,6 +6,7 @@ arm and bending the knees.
 """
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -169,16 +170,16 @@ def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
 
 
 def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
-    """info["iou"]: one IoU per camera, equal to the CPU rasteriser's count at tile
-    resolution against the uploaded foreground; a worse pose has a lower IoU."""
+    """info["iou"]: one IoU per camera, equal to the CPU rasteriser's count against the
+    foreground at the IoU tile (the tracking tile or a finer one); a worse pose scores lower."""
     from gltrack.data.dataset import Dataset
     from gltrack.render import reference as ref
     from gltrack.track.multiview import HpsOptions, HPSTracker
 
     path, body, P = dataset
     ds = Dataset.open(path)
-    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, environment=False),
-                    np.random.default_rng(0))
+    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, environment=False,
+                                              iou_tile=128), np.random.default_rng(0))
     try:
         tr.start(0, P[0])
         est = tr.step(1)
@@ -186,21 +187,26 @@ def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
         assert len(iou) == len(ds.cameras) and all(0.0 <= v <= 1.0 for v in iou)
         assert est.info["quality"] == pytest.approx(est.score / tr.area)
         _, fgs, blocks = tr.observe(1)
-        eng = tr.engine
-        for pose in (est.params, body.dofs.validate(P[1] + 0.3 * (np.arange(P.shape[1]) % 3 == 0))[0]):
-            e_s, _, got = tr.likelihood.scores_and_iou(pose)
-            S = body.skinning(pose[None])
-            want = []
-            for c, v in enumerate(eng.views):
-                k = v.cam_tile
-                rz, _ = ref.render_candidates(body.mesh, S, k.K, k.R, k.t, k.width, k.height)
-                fg = eng.to_tile(fgs[c].astype(np.uint8)) > 0
-                want.append(ref.silhouette_iou(rz[0], fg, eng.to_tile(blocks[c].astype(np.uint8)) > 0))
-            assert np.abs(np.asarray(got) - want).max() < 0.03, (got, want)
-            if pose is est.params:
-                np.testing.assert_allclose(iou, got, atol=1e-4)
-                first = np.asarray(got)
-        assert np.mean(got) < np.mean(first) - 0.05, (first, got)
+        bad = body.dofs.validate(P[1] + 0.3 * (np.arange(P.shape[1]) % 3 == 0))[0]
+        means = []
+        for tile in (None, 128):
+            for pose in (est.params, bad):
+                got = tr.likelihood.silhouette_iou(pose, tile)
+                cams = [v.camera.scaled(tile or 64, tile or 64) for v in tr.engine.views]
+                S = body.skinning(pose[None])
+                want = []
+                for c, k in enumerate(cams):
+                    rz, _ = ref.render_candidates(body.mesh, S, k.K, k.R, k.t, k.width, k.height)
+                    size = (k.width, k.height)
+                    fg, bl = (cv2.resize(m.astype(np.uint8), size,
+                                         interpolation=cv2.INTER_NEAREST_EXACT) > 0
+                              for m in (fgs[c], blocks[c]))
+                    want.append(ref.silhouette_iou(rz[0], fg, bl))
+                assert np.abs(got - want).max() < 0.03, (tile, got, want)
+                means.append(np.mean(got))
+                if tile == 128 and pose is est.params:
+                    np.testing.assert_allclose(iou, got, atol=1e-4)
+        assert means[1] < means[0] - 0.05 and means[3] < means[2] - 0.05, means
     finally:
         tr.close()
         ds.close()

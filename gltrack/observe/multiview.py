@@ -137,6 +137,8 @@ class SilhouetteLikelihood:
         self.area = 1.0
         self.areas = np.zeros(len(observation.pinholes))
         self.frame = None
+        self._fgs = self._blocks = None
+        self._iou_eng, self._iou_frame, self._iou_areas = None, None, None
 
     @property
     def channels(self) -> list[str]:
@@ -194,6 +196,8 @@ class SilhouetteLikelihood:
             for f, b in zip(fgs, blocks)], dtype=np.float64)
         self.area = max(1.0, float(self.areas.sum()))
         self.frame = frame
+        self._fgs, self._blocks = fgs, blocks
+        self._iou_frame = None  # a re-read frame (same number, other masks) is uploaded again
         return images, fgs, blocks
 
     def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -203,29 +207,57 @@ class SilhouetteLikelihood:
         c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
         return e_s, c_a
 
-    def scores_and_iou(self, x: np.ndarray):
-        """:meth:`scores` of one pose plus its per-camera silhouette IoU, in one engine call.
+    def silhouette_iou(self, x: np.ndarray, tile: int | None = None) -> np.ndarray:
+        """Per-camera silhouette IoU of one pose against the current frame's foreground.
 
-        The IoU is counted at the engine's tile resolution over the unblocked pixels (those
-        ``e_S`` counts): ``|M & F| / |M | F|`` from the ``model`` channel M, the XOR count X
-        and the foreground area F of each camera (:func:`gltrack.render.engine.silhouette_iou`).
+        ``|M & F| / |M | F|`` over the unblocked pixels (those ``e_S`` counts), from the
+        engine's ``model`` channel M, the XOR count X and the foreground area F of each camera
+        (:func:`gltrack.render.engine.silhouette_iou`): one engine call.
 
         Parameters
         ----------
         x : (D,) pose parameters
+        tile : int (power of two), optional
+            Resolution the IoU is counted at (each camera resampled to ``tile`` x ``tile``).
+            None or the tracking tile: the tracking engine and the masks already uploaded;
+            another: a second engine of that tile (made on first use, sharing the programs)
+            gets this frame's masks. A finer tile than the tracking one measures the fit, not
+            the tile: at 64 px a limb is 2-3 pixels wide and one pixel of rounding costs a third.
 
         Returns
         -------
-        e_s : float, silhouette XOR summed over cameras (px); c_a : float or None;
-        iou : (C,) float in 0..1, one per camera (1 where model and foreground are both empty)
+        (C,) float in 0..1, one per camera (1 where model and foreground are both empty)
         """
-        r = self.engine.score(self.body.skinning(np.asarray(x, dtype=np.float64)[None]),
-                              [*self.channels, "model"])[0]
-        iou = silhouette_iou(r[:, 0], self.areas, r[:, 1])
-        c_a = float(r[:, 2].sum()) if self.appearance is not None else None
-        return float(r[:, 1].sum()), c_a, iou
+        eng, areas = self.engine, self.areas
+        if tile is not None and int(tile) != self.engine.tile:
+            eng = self._iou_engine(int(tile))
+            if self._iou_frame != self.frame:
+                T = eng.tile
+                areas = []
+                for c, (f, b) in enumerate(zip(self._fgs, self._blocks)):
+                    eng.set_masks(c, f, b)
+                    areas.append(np.count_nonzero(eng.to_tile((f & ~b).astype(np.uint8))))
+                self._iou_areas, self._iou_frame = np.asarray(areas, np.float64), self.frame
+                log.debug("IoU masks of frame %s uploaded at %d px", self.frame, T)
+            areas = self._iou_areas
+        r = eng.score(self.body.skinning(np.asarray(x, dtype=np.float64)[None]),
+                      ["silhouette", "model"])[0]
+        return silhouette_iou(r[:, 0], areas, r[:, 1])
+
+    def _iou_engine(self, tile):
+        if self._iou_eng is None or self._iou_eng.tile != tile:
+            if self._iou_eng is not None:
+                self._iou_eng.release()
+            self._iou_eng = ScoringEngine(self.engine.ctx, self.body.mesh,
+                                          self.body.skeleton.n_joints, self.obs.pinholes,
+                                          tile=tile, programs=self.engine.programs)
+            self._iou_frame = None
+        return self._iou_eng
 
     def release(self) -> None:
+        if self._iou_eng is not None:
+            self._iou_eng.release()
+            self._iou_eng = None
         if self.env is not None:
             self.env.release()
             self.env = None
