@@ -3,8 +3,9 @@
 Two figures any take has, recorded or synthetic:
 
 * **silhouette IoU** per camera: ``|M & F| / |M | F|`` of the model's silhouette at the estimate
-  (M) and the frame's foreground mask (F), counted by the multi-view trackers at the scoring
-  engine's tile resolution over the pixels the costs do not block, and recorded per frame as
+  (M) and the frame's foreground mask (F), counted by the multi-view trackers with the scoring
+  engine (each camera resampled to ``iou_tile`` pixels square, 256 by default) over the pixels
+  the costs do not block, and recorded per frame as
   ``info["iou"]`` (one value per colour camera, 0..1) in ``frames.jsonl``. Summarised per
   camera as the mean and the minimum over the frames, and the frames below
   :data:`IOU_LOW` (0.6: the issue's "no frame below" bound; a silhouette that poor means a limb
@@ -154,7 +155,7 @@ def quality_table(q: dict) -> str:
             fm = "n/a" if not np.isfinite(m) else f"{m:.3f}"
             fl = "n/a" if not np.isfinite(lo) else f"{lo:.3f}"
             lines.append(f"{c:<{w}}  {fm:>8}  {fl:>7}  {len(b)}" + (f" ({shown})" if b else ""))
-        lines.append(f"silhouette IoU of {q['iou_frames']} frames (engine tile resolution)")
+        lines.append(f"silhouette IoU of {q['iou_frames']} frames (frames.jsonl info 'iou')")
     else:
         lines.append("silhouette IoU: n/a (frames.jsonl records none: not a multi-view tracker, "
                      "or no frames.jsonl)")
