@@ -98,6 +98,9 @@ def test_other_methods_run_and_count_evaluations(dataset, tmp_path, method, conf
                              ["--frames", "0:3", "--init", "groundtruth"])
     per = {"sir": 200, "apf": 60 * 4, "ps": 40 * 10}[method]
     assert [f["evaluations"] for f in frames] == [per + 1] * 3
+    # every frame records its per-camera IoU, and eval summarises it
+    assert all(len(f["info"]["iou"]) == 4 for f in frames)
+    assert metrics["quality"]["iou_frames"] == 3 and min(metrics["quality"]["iou_mean"]) > 0.4
     # Three frames cover too little motion for an accuracy ranking; it must not diverge though.
     assert _summary(metrics) < 150.0
 
@@ -106,7 +109,8 @@ def test_options_are_validated(dataset, tmp_path):
     path, _, _ = dataset
     cfg = tmp_path / "bad.toml"
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
-                 "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n"):
+                 "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n",
+                 "iou_tile = 48\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
