@@ -5,6 +5,8 @@
 // Channels of the returned vec4:  x = depth cost, y = silhouette XOR count,
 //                                 z = appearance consistent-pixel count, w = custom cost.
 // Enabled by #defines: CH_DEPTH, CH_DEPTH_SMOOTH, CH_SILHOUETTE, CH_APPEARANCE, CH_CUSTOM.
+// CH_MODEL (never with CH_DEPTH*) puts the model's unblocked pixel count |M \ B| in x: with the
+// XOR count and the foreground area it gives the silhouette IoU of a pose.
 
 uniform sampler2D model_z;    // grid texture: camera z of the model, 0 = no model
 uniform sampler2D model_tri;  // grid texture: .g = 1 + triangle id (a float), 0 = no model
@@ -52,7 +54,7 @@ vec4 pixel_costs(ivec2 p) {
     c.x = depth_pixel(zo, texelFetch(model_z, p, 0).r);
 #endif
 #endif
-#if defined(CH_SILHOUETTE) || defined(CH_APPEARANCE)
+#if defined(CH_SILHOUETTE) || defined(CH_APPEARANCE) || defined(CH_MODEL)
     vec2 fb = texelFetch(obs_mask, local, 0).rg;
     bool blocked = fb.g > 0.5;
 #endif
@@ -60,6 +62,9 @@ vec4 pixel_costs(ivec2 p) {
     bool model_on = texelFetch(model_z, p, 0).r > 0.0;
     bool fg = fb.r > 0.5;
     c.y = (model_on != fg && !blocked) ? 1.0 : 0.0;
+#endif
+#ifdef CH_MODEL
+    c.x = (texelFetch(model_z, p, 0).r > 0.0 && !blocked) ? 1.0 : 0.0;
 #endif
 #ifdef CH_APPEARANCE
     int tri = int(texelFetch(model_tri, p, 0).g) - 1;

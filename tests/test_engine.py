@@ -18,7 +18,8 @@ from gltrack.body.skeleton import default_skeleton
 from gltrack.camera import look_at_camera
 from gltrack.gl.programs import ShaderError
 from gltrack.render import reference as ref
-from gltrack.render.engine import CustomCost, DepthCostParams, ScoringEngine, grid_for
+from gltrack.render.engine import (CustomCost, DepthCostParams, ScoringEngine, grid_for,
+                                   silhouette_iou)
 
 TILE = 64
 
@@ -134,6 +135,41 @@ def test_silhouette_and_appearance_multi_camera(ctx, body, rng):
         assert_close(out[:, c, 1], sil, f"silhouette cam{c}")
         assert_close(out[:, c, 2], app, f"appearance cam{c}")
         assert np.ptp(sil) > 5 and app.max() > 10
+
+
+def test_model_channel_gives_silhouette_iou(ctx, body, rng):
+    """Channel "model" (|M minus B|) with the XOR count gives the IoU the CPU twin counts
+    directly, on both reductions; a different pose gives a different IoU."""
+    skel, dofs, kin, mesh = body
+    cs = cams(2, size=TILE, kind="colour")
+    truth = random_poses(body, rng, 1)
+    S = kin.skinning_matrices(np.concatenate([truth, random_poses(body, rng, 5)]))
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE) as eng:
+        obs = []
+        for c, cam in enumerate(cs):
+            tz, _ = ref_render(mesh, kin.skinning_matrices(truth), cam)
+            fg = tz[0] > 0
+            block = np.zeros_like(fg)
+            block[-TILE // 4:, : TILE // 2] = True
+            eng.set_masks(c, fg, block)
+            obs.append((fg, block))
+        got = {}
+        for red in ("mipmap", "compute"):
+            eng.reduction, eng._auto_pending = red, False
+            got[red] = eng.score(S, ["silhouette", "model"])
+        with pytest.raises(ValueError, match="share a slot"):
+            eng.score(S, ["depth", "model"])
+    assert np.allclose(got["mipmap"], got["compute"], rtol=1e-4, atol=1e-3)
+    for c, cam in enumerate(cs):
+        rz, _ = ref_render(mesh, S, cam)
+        fg, block = obs[c]
+        area = np.array([ref.model_area(rz[i], block) for i in range(len(S))])
+        assert_close(got["compute"][:, c, 0], area, f"model cam{c}")
+        f_px = np.count_nonzero(fg & ~block)
+        iou = silhouette_iou(got["compute"][:, c, 0], f_px, got["compute"][:, c, 1])
+        want = np.array([ref.silhouette_iou(rz[i], fg, block) for i in range(len(S))])
+        assert np.abs(iou - want).max() < 0.02, (iou, want)
+        assert iou[0] > 0.97 and iou[1:].min() < iou[0] - 0.05, iou
 
 
 def test_observation_resampled_to_tile(ctx, body, rng):

@@ -181,7 +181,7 @@ def test_reports(tmp_path):
 
 
 # ---- gltrack eval ------------------------------------------------------------------------------
-def make_dataset_and_result(tmp_path, offset, with_gt=True):
+def make_dataset_and_result(tmp_path, offset, with_gt=True, infos=None):
     from gltrack.camera import Camera
     from gltrack.data.dataset import DatasetWriter
     from gltrack.data.results import ResultsWriter
@@ -199,7 +199,8 @@ def make_dataset_and_result(tmp_path, offset, with_gt=True):
     rw = ResultsWriter(tmp_path / "res", "sir", gt["joint_names"], gt["marker_names"])
     for f in range(N):
         rw.append(f, gt["params"][f], gt["joints"][f] + offset, gt["markers"][f] + offset,
-                  score=0.0, evaluations=10, seconds=0.1)
+                  score=0.0, evaluations=10, seconds=0.1,
+                  info=None if infos is None else infos[f])
     rw.finish()
     return tmp_path / "res", tmp_path / "ds"
 
@@ -227,7 +228,7 @@ def test_cli_eval_end_to_end(tmp_path, capsys):
 
 def test_cli_eval_errors(tmp_path, capsys):
     res, ds = make_dataset_and_result(tmp_path, 0.0, with_gt=False)
-    assert main(["eval", str(res), str(ds)]) == 1
+    assert main(["eval", str(res), str(ds), "--plot", str(tmp_path / "p.png")]) == 2
     assert "no groundtruth.npz" in capsys.readouterr().err
     assert main(["eval", str(tmp_path / "missing"), str(ds)]) == 1
     err = capsys.readouterr().err
@@ -235,6 +236,60 @@ def test_cli_eval_errors(tmp_path, capsys):
     assert main(["eval", str(res), str(ds), "--json", str(tmp_path / "a"),
                  "--csv", str(tmp_path / "a")]) == 2
     assert main(["eval", str(res)]) == 2
+
+
+IOUS = [[0.9, 0.8], [0.85, 0.5], [0.95, 0.7], [0.8, 0.75], [0.9, 0.55], [0.7, 0.8]]
+
+
+def test_cli_eval_without_groundtruth_reports_quality(tmp_path, capsys):
+    infos = [{"iou": v, "quality": 0.2} for v in IOUS]
+    res, ds = make_dataset_and_result(tmp_path, 0.0, with_gt=False, infos=infos)
+    j, c = tmp_path / "q.json", tmp_path / "q.csv"
+    assert main(["eval", str(res), str(ds), "--json", str(j), "--csv", str(c)]) == 0
+    out = capsys.readouterr().out
+    assert "no ground truth" in out and "mean IoU" in out and "jitter" in out
+    assert "cam1" in out and "2 (1, 4)" in out  # frames below 0.6 listed
+    q = json.loads(j.read_text())["quality"]
+    assert q["iou_mean"] == pytest.approx(np.mean(IOUS, axis=0).tolist())
+    assert q["iou_min"] == pytest.approx([0.7, 0.5])
+    assert q["iou_frames_below"] == {"cam0": [], "cam1": [1, 4]} and q["iou_frames"] == N
+    assert q["jitter_frames"] == N - 2 and q["jitter_mean_mm"] > 0
+    assert q["jitter_p95_mm"] >= q["jitter_mean_mm"]
+    rows = list(csv.DictReader(open(c)))
+    assert len(rows) == N and float(rows[1]["iou_cam1"]) == pytest.approx(0.5)
+    assert rows[0]["jitter_mm"] == "" and float(rows[1]["jitter_mm"]) > 0
+    # With ground truth the same figures come on top of the joint errors, keys unchanged.
+    res2, ds2 = make_dataset_and_result(tmp_path / "gt", 0.0, infos=infos)
+    assert main(["eval", str(res2), str(ds2), "--json", str(j)]) == 0
+    out = capsys.readouterr().out
+    assert "MPJPE" in out and "mean IoU" in out
+    data = json.loads(j.read_text())
+    assert set(M.SUMMARY_KEYS) <= set(data) and "joint_error_mm" in data["per_frame"]
+    assert data["quality"]["iou_min"] == pytest.approx([0.7, 0.5])
+
+
+def test_joint_jitter_of_known_trajectories():
+    from gltrack.eval.quality import joint_jitter, quality_summary
+
+    t = np.arange(10, dtype=float)
+    X = np.zeros((10, 2, 3))
+    X[:, 0, 0] = 0.01 * t                 # constant velocity: no jitter
+    X[:, 1, 1] = 0.002 * t ** 2 / 2       # constant acceleration: 2 mm/frame^2
+    f, jit = joint_jitter(X)
+    assert f.tolist() == list(range(1, 9))
+    np.testing.assert_allclose(jit, 1.0)  # mean of 0 and 2 mm/frame^2
+    # a shake of +-1 mm on one joint: |x(t+1) - 2x(t) + x(t-1)| = 4 mm
+    Y = X.copy()
+    Y[:, 0, 2] += 0.001 * (-1.0) ** t
+    np.testing.assert_allclose(joint_jitter(Y)[1], (4.0 + 2.0) / 2)
+    # rotation-invariant, and only consecutive frames count
+    R = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
+    np.testing.assert_allclose(joint_jitter(Y @ R.T)[1], joint_jitter(Y)[1])
+    frames = np.array([0, 1, 2, 4, 5, 6, 7, 8, 9, 10])
+    assert joint_jitter(X, frames)[0].tolist() == [1, 5, 6, 7, 8, 9]
+    q = quality_summary({"joints": Y, "joint_names": ["a", "b"], "frame": np.arange(10)}, {})
+    assert q["cameras"] == [] and q["jitter_mean_mm"] == pytest.approx(3.0)
+    assert q["jitter_p95_mm"] == pytest.approx(3.0)
 
 
 def test_marker_thresholds_are_inclusive():

@@ -202,3 +202,45 @@ def test_distorted_camera_input_is_undistorted(scene):
     expect = cam.undistort_image(raw)
     np.testing.assert_array_equal(img[far], expect[far])
     assert np.any(img[far] != plain[far])
+
+
+def test_multiview_grid_video_with_iou(tmp_path):
+    """Four colour cameras: a 2x2 grid video of the grid's size, the model drawn where it is,
+    the input elsewhere, and each camera's IoU from frames.jsonl in its corner."""
+    from gltrack.bench.multiview import RING, render_dataset
+    from gltrack.bench.rigs import ring_cameras
+
+    body = BodyModel.build()
+    P = smooth_motion(body, 3, np.random.default_rng(1))
+    pelvis = body.joints(P[1:2])[0, 0]
+    cams = ring_cameras((pelvis[0], 0.9, pelvis[2]), **dict(RING, radius=3.0))
+    ds = render_dataset(tmp_path / "ds", body, P, cams, 15.0, np.random.default_rng(2), noise=0.0)
+    ious = [[0.9, 0.8, 0.55, 0.7]] * 3
+    with ResultsWriter(tmp_path / "res", "hps", body.skeleton.names, body.markers.names) as w:
+        for f in range(3):
+            w.append(f, P[f], body.joints(P[f:f + 1])[0], body.marker_positions(P[f:f + 1])[0],
+                     info={"iou": ious[f]})
+        w.finish()
+    out = tmp_path / "grid.mp4"
+    assert main(["-q", "render", str(tmp_path / "res"), str(ds), "--out", str(out)]) == 0
+    cap = cv2.VideoCapture(str(out))
+    frames = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        frames.append(img)
+    cap.release()
+    assert len(frames) == 3 and frames[0].shape == (2 * 96, 2 * 128, 3)
+    with OverlayRenderer(tmp_path / "res", ds) as r:
+        assert [r.frame_iou(1, c) for c in range(4)] == ious[1]
+        raw = [r.input_image(1, c) for c in range(4)]
+    for c, cam in enumerate(cams):
+        cell = frames[1][96 * (c // 2):96 * (c // 2 + 1), 128 * (c % 2):128 * (c % 2 + 1)]
+        inside, far = _regions(_silhouette({"body": body}, P[1], cam), far_px=8)
+        assert inside.sum() > 50 and far.sum() > 2000
+        diff = np.abs(cell.astype(float) - raw[c].astype(float)).mean(axis=-1)
+        # lossy video of a random-texture background: about 6 grey levels of coding noise far
+        # from the body, about 90 on it
+        assert diff[far].mean() < 12.0 and diff[inside].mean() > 40.0, c
+        assert np.any(diff[TEXT_BOX] > 50)  # frame, camera and IoU printed

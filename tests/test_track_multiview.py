@@ -6,6 +6,7 @@ arm and bending the knees.
 """
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -97,6 +98,9 @@ def test_other_methods_run_and_count_evaluations(dataset, tmp_path, method, conf
                              ["--frames", "0:3", "--init", "groundtruth"])
     per = {"sir": 200, "apf": 60 * 4, "ps": 40 * 10}[method]
     assert [f["evaluations"] for f in frames] == [per + 1] * 3
+    # every frame records its per-camera IoU, and eval summarises it
+    assert all(len(f["info"]["iou"]) == 4 for f in frames)
+    assert metrics["quality"]["iou_frames"] == 3 and min(metrics["quality"]["iou_mean"]) > 0.4
     # Three frames cover too little motion for an accuracy ranking; it must not diverge though.
     assert _summary(metrics) < 150.0
 
@@ -105,7 +109,8 @@ def test_options_are_validated(dataset, tmp_path):
     path, _, _ = dataset
     cfg = tmp_path / "bad.toml"
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
-                 "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n"):
+                 "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n",
+                 "iou_tile = 48\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
@@ -166,6 +171,49 @@ def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
         assert not np.array_equal(tr.scores(X)[0], e_s)
     finally:
         tr.close()
+
+
+def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
+    """info["iou"]: one IoU per camera, equal to the CPU rasteriser's count against the
+    foreground at the IoU tile (the tracking tile or a finer one); a worse pose scores lower."""
+    from gltrack.data.dataset import Dataset
+    from gltrack.render import reference as ref
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = dataset
+    ds = Dataset.open(path)
+    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, environment=False,
+                                              iou_tile=128), np.random.default_rng(0))
+    try:
+        tr.start(0, P[0])
+        est = tr.step(1)
+        iou = est.info["iou"]
+        assert len(iou) == len(ds.cameras) and all(0.0 <= v <= 1.0 for v in iou)
+        assert est.info["quality"] == pytest.approx(est.score / tr.area)
+        _, fgs, blocks = tr.observe(1)
+        bad = body.dofs.validate(P[1] + 0.3 * (np.arange(P.shape[1]) % 3 == 0))[0]
+        means = []
+        for tile in (None, 128):
+            for pose in (est.params, bad):
+                got = tr.likelihood.silhouette_iou(pose, tile)
+                cams = [v.camera.scaled(tile or 64, tile or 64) for v in tr.engine.views]
+                S = body.skinning(pose[None])
+                want = []
+                for c, k in enumerate(cams):
+                    rz, _ = ref.render_candidates(body.mesh, S, k.K, k.R, k.t, k.width, k.height)
+                    size = (k.width, k.height)
+                    fg, bl = (cv2.resize(m.astype(np.uint8), size,
+                                         interpolation=cv2.INTER_NEAREST_EXACT) > 0
+                              for m in (fgs[c], blocks[c]))
+                    want.append(ref.silhouette_iou(rz[0], fg, bl))
+                assert np.abs(got - want).max() < 0.03, (tile, got, want)
+                means.append(np.mean(got))
+                if tile == 128 and pose is est.params:
+                    np.testing.assert_allclose(iou, got, atol=1e-4)
+        assert means[1] < means[0] - 0.05 and means[3] < means[2] - 0.05, means
+    finally:
+        tr.close()
+        ds.close()
 
 
 # ---------------------------------------------------------------- behaviour prior (--prior vlmm)

@@ -690,3 +690,46 @@ def check_result_world(result, dataset, where: str = "the result"):
         raise ValueError(f"{where}: field 'world' ({result.get('world')!r}) is not the frame of "
                          f"{dataset.path / 'meta.json'} ({mine!r}): was it tracked on this "
                          "dataset?")
+
+
+def frame_infos(path) -> dict:
+    """The trackers' per-frame diagnostics (``"info"`` of each ``frames.jsonl`` record).
+
+    Parameters
+    ----------
+    path : results folder (a ``poses.npz`` path is taken to mean its folder)
+
+    Returns
+    -------
+    dict of int -> dict
+        Dataset frame -> the info dict of its record (the last one, should a frame appear twice);
+        empty when the folder has no ``frames.jsonl``. A torn last line is skipped, as
+        :func:`read_frames` does.
+
+    Raises
+    ------
+    ValueError
+        A damaged record before the last line, naming the file and line.
+    """
+    path = Path(path)
+    folder = path.parent if path.is_file() else path
+    try:
+        lines = (folder / FRAMES).read_text(encoding="utf-8", errors="replace").split("\n")
+    except FileNotFoundError:
+        return {}
+    out = {}
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            frame = int(rec["frame"])
+        except (ValueError, TypeError, KeyError) as exc:
+            if i >= len(lines) - 2:  # the last line a crash may have cut short
+                log.warning("%s, line %d: skipping unreadable last line", folder / FRAMES, i + 1)
+                continue
+            raise ValueError(f"{folder / FRAMES}, line {i + 1}: field 'frame' unreadable: "
+                             f"{exc}") from None
+        info = rec.get("info")
+        out[frame] = info if isinstance(info, dict) else {}
+    return out

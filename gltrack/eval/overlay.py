@@ -9,18 +9,28 @@ Per frame and camera:
    at the camera's resolution, coloured by body part and shaded by the angle between surface
    normal and viewing ray, alpha-blended over the silhouette only (pixels the body does not
    cover keep the input exactly);
+   The silhouette's outline is drawn on top (:data:`OUTLINE_BGR`), so on real footage the
+   person's own outline and the model's can be compared at a glance;
 3. the skeleton of the tracked joints (yellow) and, when the dataset has ``groundtruth.npz``,
    of the ground-truth joints (green), projected with the camera;
-4. frame number, camera name and the frame's mean joint error in the top-left corner.
+4. frame number, camera name, the frame's mean joint error (with ground truth) and the
+   camera's silhouette IoU when ``frames.jsonl`` records it (``info["iou"]`` of the multi-view
+   trackers, :mod:`gltrack.eval.quality`; shown in red below 0.6) in the top-left corner.
 
-Tiles are laid out in a near-square grid (cells of the largest camera size; smaller images are
-scaled to fit, keeping their aspect). The video is MPEG-4 (``mp4v``) in an .mp4 file, or Motion
-JPEG in an .avi when the OpenCV build cannot write mp4v (logged as a warning).
+Tiles are laid out in a near-square grid, ``ceil(sqrt(C))`` columns (2x2 for 3 or 4 cameras,
+3x2 for 5 or 6), with cells of the largest camera size; smaller images are scaled to fit,
+keeping their aspect. The video in an .mp4 file is H.264 (``avc1``) when this OpenCV build can
+encode it (it plays in browsers and every player), else MPEG-4 Part 2 (``mp4v``: VLC, ffmpeg
+and most desktop players; the opencv-python wheels carry no H.264 encoder); Motion JPEG in an
+.avi when neither is available (logged as a warning).
 """
 from __future__ import annotations
 
 import logging
 import math
+import os
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -30,7 +40,10 @@ log = logging.getLogger(__name__)
 
 TRACKED_BGR = (0, 230, 255)
 GROUNDTRUTH_BGR = (60, 220, 60)
+OUTLINE_BGR = (255, 60, 255)
 ALPHA = 0.6
+#: IoU below which the overlay prints a camera's IoU in red (:data:`gltrack.eval.quality.IOU_LOW`).
+IOU_LOW = 0.6
 
 #: Per-body-part base colours (BGR), index = gltrack.body.mesh.PARTS.
 _PART_BGR = np.array([
@@ -163,6 +176,12 @@ class OverlayRenderer:
             _, ia, ib = common_names(names, gnames, EVAL_JOINTS)
             if len(ia):
                 self._err_idx = (ia, ib)
+        from gltrack.data.results import frame_infos
+
+        self.infos = {} if isinstance(result, dict) else frame_infos(result)
+        # info["iou"] lists follow the dataset's colour cameras in order
+        colour = [k for k, cam in enumerate(ds.cameras) if cam.kind == "colour"]
+        self._iou_pos = {k: n for n, k in enumerate(colour)}
         self.depth_range = {}
         for c in self.cams:
             cam = ds.cameras[c]
@@ -202,6 +221,14 @@ class OverlayRenderer:
         d = np.linalg.norm(pred - gt, axis=1)
         d = d[np.isfinite(d)]
         return float(d.mean()) if d.size else float("nan")
+
+    def frame_iou(self, i, c) -> float:
+        """Silhouette IoU of result row ``i`` in camera ``c`` from ``frames.jsonl`` (NaN if none)."""
+        iou = self.infos.get(int(self.rows[i]), {}).get("iou")
+        k = self._iou_pos.get(c)
+        if not isinstance(iou, (list, tuple)) or k is None or k >= len(iou) or iou[k] is None:
+            return float("nan")
+        return float(iou[k])
 
     def input_image(self, i, c) -> np.ndarray:
         """(H, W, 3) uint8 BGR: the undistorted, colour-mapped input of row ``i``, camera ``c``."""
@@ -258,6 +285,9 @@ class OverlayRenderer:
         blended = (1.0 - ALPHA) * img[mask].astype(np.float64) + ALPHA * colour[mask]
         img[mask] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
         thick = max(1, round(min(cam.width, cam.height) / 360))
+        contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_SIMPLE)
+        cv2.drawContours(img, contours, -1, OUTLINE_BGR, thick, cv2.LINE_AA)
         f = int(self.rows[i])
         if self.gt is not None and self._gt_bones:
             self._draw_skeleton(img, cam, self.gt["joints"][f], self._gt_bones, GROUNDTRUTH_BGR,
@@ -266,9 +296,15 @@ class OverlayRenderer:
         self._draw_skeleton(img, cam, joints, self._bones, TRACKED_BGR, thick)
         err = self.frame_error(i)
         lines = [f"frame {f}  {cam.name}"]
+        colours = [None]
         if np.isfinite(err):
             lines.append(f"err {1000.0 * err:.0f} mm")
-        _corner_text(img, lines)
+            colours.append(None)
+        iou = self.frame_iou(i, c)
+        if np.isfinite(iou):
+            lines.append(f"IoU {iou:.2f}")
+            colours.append((80, 80, 255) if iou < IOU_LOW else None)
+        _corner_text(img, lines, colours)
         return img
 
     def _posed(self, i):
@@ -283,7 +319,7 @@ class OverlayRenderer:
         return tile([self.camera_frame(i, c, posed) for c in self.cams])
 
 
-def _corner_text(img, lines):
+def _corner_text(img, lines, colours=None):
     h = img.shape[0]
     scale = max(0.35, h / 720.0 * 0.6)
     thick = max(1, round(scale * 1.5))
@@ -294,8 +330,8 @@ def _corner_text(img, lines):
     # An opaque box: outlined glyphs smear at the small sizes of depth-camera images.
     cv2.rectangle(img, (0, 0), (width + 6, step * len(lines) + 3), (0, 0, 0), -1)
     for k, text in enumerate(lines):
-        cv2.putText(img, text, (3, step * (k + 1) - 2), font, scale, (255, 255, 255), thick,
-                    cv2.LINE_AA)
+        bgr = (colours[k] if colours and k < len(colours) else None) or (255, 255, 255)
+        cv2.putText(img, text, (3, step * (k + 1) - 2), font, scale, bgr, thick, cv2.LINE_AA)
 
 
 def tile(images) -> np.ndarray:
@@ -328,8 +364,47 @@ def tile(images) -> np.ndarray:
     return out
 
 
+@contextmanager
+def _quiet_stderr():
+    """Silence file descriptor 2 (FFmpeg and OpenCV print failed encoder probes there)."""
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+_H264: bool | None = None
+
+
+def h264_available() -> bool:
+    """Whether this OpenCV can write H.264 (``avc1``) into .mp4 (probed once per process on a
+    tiny temporary file; the failed probe's encoder messages are silenced)."""
+    global _H264
+    if _H264 is None:
+        with tempfile.TemporaryDirectory() as d, _quiet_stderr():
+            path = os.path.join(d, "probe.mp4")
+            w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"avc1"), 10.0, (64, 64))
+            ok = w.isOpened()
+            if ok:
+                for _ in range(2):
+                    w.write(np.zeros((64, 64, 3), np.uint8))
+            w.release()
+            _H264 = bool(ok and os.path.getsize(path) > 0)
+        log.debug("H.264 (avc1) writer %s", "available" if _H264 else "unavailable")
+    return _H264
+
+
 def open_video_writer(out, fps: float, size):
-    """Open a cv2.VideoWriter, falling back from mp4v/.mp4 to MJPG/.avi.
+    """Open a cv2.VideoWriter: for .mp4 H.264 (``avc1``) when available (:func:`h264_available`),
+    else MPEG-4 Part 2 (``mp4v``), falling back to Motion JPEG in .avi.
 
     Parameters
     ----------
@@ -346,7 +421,8 @@ def open_video_writer(out, fps: float, size):
     suffix = out.suffix.lower()
     if suffix not in (".mp4", ".avi"):
         raise ValueError(f"{out}: video file must end in .mp4 or .avi")
-    tries = [("mp4v", out)] if suffix == ".mp4" else []
+    tries = ([("avc1", out)] if h264_available() else []) + [("mp4v", out)] \
+        if suffix == ".mp4" else []
     tries.append(("MJPG", out.with_suffix(".avi")))
     for fourcc, path in tries:
         w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), float(fps), tuple(size))
@@ -354,6 +430,9 @@ def open_video_writer(out, fps: float, size):
             if path != out:
                 log.warning("%s: this OpenCV cannot write mp4v; wrote Motion JPEG to %s instead",
                             out, path)
+            elif fourcc == "mp4v":
+                log.info("%s: MPEG-4 Part 2 (mp4v; this OpenCV has no H.264 encoder): plays in "
+                         "VLC/ffmpeg-based players, not in every browser", out)
             return w, path
         w.release()
     raise OSError(f"{out}: cv2.VideoWriter could open neither mp4v nor MJPG")
@@ -368,7 +447,7 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
     result : path or dict
         Results folder, or the dict of :func:`gltrack.data.results.load_results`.
     dataset : path or gltrack.data.dataset.Dataset
-    out : path, ``.mp4`` (MPEG-4) or ``.avi`` (Motion JPEG)
+    out : path, ``.mp4`` (H.264 or MPEG-4, see :func:`open_video_writer`) or ``.avi`` (Motion JPEG)
     cameras : "all", int, str or sequence of those
     max_frames : int, optional
         Render only the first ``max_frames`` result frames.

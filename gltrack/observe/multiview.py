@@ -17,7 +17,7 @@ import logging
 import cv2
 import numpy as np
 
-from gltrack.render.engine import ScoringEngine
+from gltrack.render.engine import ScoringEngine, silhouette_iou
 
 from . import hls
 from .appearance import AppearanceModel
@@ -119,6 +119,7 @@ class SilhouetteLikelihood:
     appearance : AppearanceModel or None
     area : float, unblocked foreground pixels of the current frame at tile resolution, summed
         over the cameras (at least 1): the scale of ``e_S``
+    areas : (C,) float, the same per camera (may be 0)
     """
 
     def __init__(self, ctx, body, observation: MultiviewObservation, *, tile: int = 64,
@@ -134,7 +135,10 @@ class SilhouetteLikelihood:
         self.use_appearance = bool(appearance)
         self.appearance = None
         self.area = 1.0
+        self.areas = np.zeros(len(observation.pinholes))
         self.frame = None
+        self._fgs = self._blocks = None
+        self._iou_eng, self._iou_frame, self._iou_areas = None, None, None
 
     @property
     def channels(self) -> list[str]:
@@ -186,11 +190,14 @@ class SilhouetteLikelihood:
             fgs.append(fg)
             blocks.append(block)
         T = self.engine.tile
-        self.area = max(1.0, float(sum(
+        self.areas = np.array([
             np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
                                         interpolation=cv2.INTER_NEAREST_EXACT))
-            for f, b in zip(fgs, blocks))))
+            for f, b in zip(fgs, blocks)], dtype=np.float64)
+        self.area = max(1.0, float(self.areas.sum()))
         self.frame = frame
+        self._fgs, self._blocks = fgs, blocks
+        self._iou_frame = None  # a re-read frame (same number, other masks) is uploaded again
         return images, fgs, blocks
 
     def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -200,7 +207,57 @@ class SilhouetteLikelihood:
         c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
         return e_s, c_a
 
+    def silhouette_iou(self, x: np.ndarray, tile: int | None = None) -> np.ndarray:
+        """Per-camera silhouette IoU of one pose against the current frame's foreground.
+
+        ``|M & F| / |M | F|`` over the unblocked pixels (those ``e_S`` counts), from the
+        engine's ``model`` channel M, the XOR count X and the foreground area F of each camera
+        (:func:`gltrack.render.engine.silhouette_iou`): one engine call.
+
+        Parameters
+        ----------
+        x : (D,) pose parameters
+        tile : int (power of two), optional
+            Resolution the IoU is counted at (each camera resampled to ``tile`` x ``tile``).
+            None or the tracking tile: the tracking engine and the masks already uploaded;
+            another: a second engine of that tile (made on first use, sharing the programs)
+            gets this frame's masks. A finer tile than the tracking one measures the fit, not
+            the tile: at 64 px a limb is 2-3 pixels wide and one pixel of rounding costs a third.
+
+        Returns
+        -------
+        (C,) float in 0..1, one per camera (1 where model and foreground are both empty)
+        """
+        eng, areas = self.engine, self.areas
+        if tile is not None and int(tile) != self.engine.tile:
+            eng = self._iou_engine(int(tile))
+            if self._iou_frame != self.frame:
+                T = eng.tile
+                areas = []
+                for c, (f, b) in enumerate(zip(self._fgs, self._blocks)):
+                    eng.set_masks(c, f, b)
+                    areas.append(np.count_nonzero(eng.to_tile((f & ~b).astype(np.uint8))))
+                self._iou_areas, self._iou_frame = np.asarray(areas, np.float64), self.frame
+                log.debug("IoU masks of frame %s uploaded at %d px", self.frame, T)
+            areas = self._iou_areas
+        r = eng.score(self.body.skinning(np.asarray(x, dtype=np.float64)[None]),
+                      ["silhouette", "model"])[0]
+        return silhouette_iou(r[:, 0], areas, r[:, 1])
+
+    def _iou_engine(self, tile):
+        if self._iou_eng is None or self._iou_eng.tile != tile:
+            if self._iou_eng is not None:
+                self._iou_eng.release()
+            self._iou_eng = ScoringEngine(self.engine.ctx, self.body.mesh,
+                                          self.body.skeleton.n_joints, self.obs.pinholes,
+                                          tile=tile, programs=self.engine.programs)
+            self._iou_frame = None
+        return self._iou_eng
+
     def release(self) -> None:
+        if self._iou_eng is not None:
+            self._iou_eng.release()
+            self._iou_eng = None
         if self.env is not None:
             self.env.release()
             self.env = None

@@ -15,6 +15,10 @@ Per frame the observations are uploaded once (:meth:`ScoringEngine.set_depth`, `
 Channels (K = 4, always in this order): ``depth`` (sum of Ganapathi's smoothstep cost),
 ``silhouette`` (Bandouch's XOR pixel count outside the blocking mask), ``appearance`` (count of
 colour-consistent pixels) and ``custom`` (a user-supplied GLSL cost, see :class:`CustomCost`).
+One more channel, ``model`` (the count of pixels the model covers outside the blocking mask,
+|M \\ B|), shares the first slot with ``depth`` and cannot be asked for with it: with the
+silhouette XOR count X and the unblocked foreground area F of a camera it gives the silhouette
+IoU ``(M + F - X) / (M + F + X)`` in the same call (:func:`silhouette_iou`).
 
 Tiles are square with a power-of-two side; observations are resampled to the tile (nearest
 neighbour, so depths are never blended across silhouettes) and each camera's intrinsics are scaled
@@ -37,7 +41,9 @@ from gltrack.gl.programs import ProgramCache
 
 log = logging.getLogger(__name__)
 
-CHANNELS = ("depth", "silhouette", "appearance", "custom")
+CHANNELS = ("depth", "silhouette", "appearance", "custom", "model")
+#: Slot of each channel in the last axis of :meth:`ScoringEngine.score`'s result.
+SLOTS = {"depth": 0, "silhouette": 1, "appearance": 2, "custom": 3, "model": 0}
 _GL_CLIP_DISTANCE0 = 0x3000
 _TRI_BITS_WIDTH = 1024
 
@@ -224,6 +230,8 @@ class ScoringEngine:
             d["CH_APPEARANCE"] = 1
         if "custom" in channels:
             d["CH_CUSTOM"] = 1
+        if "model" in channels:
+            d["CH_MODEL"] = 1
         return d
 
     def _aliases(self):
@@ -379,8 +387,9 @@ class ScoringEngine:
 
         Returns
         -------
-        (N, C, 4) float64 per-candidate, per-camera sums of the four channels (channels not
-        requested are 0): depth cost, silhouette XOR count, appearance count, custom cost.
+        (N, C, 4) float64 per-candidate, per-camera sums of the four slots (channels not
+        requested are 0): depth cost (or, with ``"model"``, the model's unblocked pixel
+        count), silhouette XOR count, appearance count, custom cost (see :data:`SLOTS`).
         """
         if self._released:
             raise RuntimeError("ScoringEngine has been released")
@@ -388,6 +397,8 @@ class ScoringEngine:
         bad = [c for c in channels if c not in CHANNELS]
         if bad or not channels:
             raise ValueError(f"unknown or empty channels {bad or channels}; choose from {CHANNELS}")
+        if "depth" in channels and "model" in channels:
+            raise ValueError("channels 'depth' and 'model' share a slot; ask for one of them")
         if "custom" in channels and self.custom is None:
             raise ValueError("channel 'custom' needs a CustomCost shader")
         S = np.asarray(skinning)
@@ -396,7 +407,8 @@ class ScoringEngine:
         if not np.all(np.isfinite(S)):
             raise ValueError("skinning matrices contain NaN or inf")
         for v in self.views:
-            need = {"depth": v.obs_z, "silhouette": v.obs_mask, "appearance": v.obs_bits}
+            need = {"depth": v.obs_z, "silhouette": v.obs_mask, "appearance": v.obs_bits,
+                    "model": v.obs_mask}
             missing = [c for c in channels if c in need and need[c] is None]
             if "appearance" in channels and v.obs_mask is None:
                 missing.append("appearance (needs set_masks for the blocking mask)")
@@ -544,6 +556,7 @@ class ScoringEngine:
         v = self.views[0]
         if any(x is None for x in (v.obs_z if "depth" in channels else 0,
                                      v.obs_mask if "silhouette" in channels else 0,
+                                     v.obs_mask if "model" in channels else 0,
                                      v.obs_bits if "appearance" in channels else 0)):
             return "compute"
         self._render(t, v, n, cols, rows, self._needs_tri(channels))
@@ -608,6 +621,29 @@ class ScoringEngine:
 
     def __exit__(self, *exc):
         self.release()
+
+
+def silhouette_iou(model_px, foreground_px, xor_px):
+    """Silhouette IoU from the engine's counts: ``|M & F| / |M | F|`` with
+    ``|M | F| = (M + F + X) / 2`` and ``|M & F| = (M + F - X) / 2``.
+
+    Parameters
+    ----------
+    model_px : array, the model's unblocked pixel count M (channel ``model``)
+    foreground_px : array, the unblocked foreground pixel count F (same shape, broadcastable)
+    xor_px : array, the silhouette XOR count X (channel ``silhouette``)
+
+    Returns
+    -------
+    array of float64 in 0..1, the shape of the broadcast inputs; 1 where both model and
+    foreground are empty (nothing to disagree on)
+    """
+    m, f, x = (np.asarray(a, dtype=np.float64) for a in (model_px, foreground_px, xor_px))
+    union = m + f + x
+    inter = np.clip(m + f - x, 0.0, None)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, np.clip(inter / np.where(union > 0, union, 1.0), 0.0, 1.0),
+                        1.0)
 
 
 def choose_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str:

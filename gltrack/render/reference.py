@@ -326,6 +326,50 @@ def silhouette_cost(model_mask: np.ndarray, fg_mask: np.ndarray,
     return float(np.count_nonzero(x))
 
 
+def model_area(model_mask: np.ndarray, block_mask: np.ndarray | None = None) -> float:
+    """The engine's ``model`` channel: pixels the model covers outside the blocking mask.
+
+    Parameters
+    ----------
+    model_mask : (H, W) bool, or a depth image (covered where ``> 0``)
+    block_mask : (H, W) bool or None, True = ignore the pixel
+
+    Returns
+    -------
+    float, ``count(model AND NOT block)``
+    """
+    m = np.asarray(model_mask)
+    m = m if m.dtype == bool else m > 0
+    if block_mask is not None:
+        b = np.asarray(block_mask).astype(bool)
+        _same_shape("model_mask", m, "block_mask", b)
+        m = m & ~b
+    return float(np.count_nonzero(m))
+
+
+def silhouette_iou(model_mask: np.ndarray, fg_mask: np.ndarray,
+                   block_mask: np.ndarray | None = None) -> float:
+    """Silhouette IoU of model and foreground over the unblocked pixels, counted directly.
+
+    Parameters
+    ----------
+    model_mask : (H, W) bool, or a depth image (covered where ``> 0``)
+    fg_mask : (H, W) bool, observed foreground
+    block_mask : (H, W) bool or None, True = ignore the pixel
+
+    Returns
+    -------
+    float in 0..1, ``count(M & F & ~B) / count((M | F) & ~B)``; 1 when the union is empty
+    """
+    m = np.asarray(model_mask)
+    m = m if m.dtype == bool else m > 0
+    f = np.asarray(fg_mask).astype(bool)
+    _same_shape("model_mask", m, "fg_mask", f)
+    keep = np.ones_like(m) if block_mask is None else ~np.asarray(block_mask).astype(bool)
+    union = np.count_nonzero((m | f) & keep)
+    return float(np.count_nonzero(m & f & keep)) / union if union else 1.0
+
+
 def appearance_score(tri: np.ndarray, obs_bits: np.ndarray, tri_bits: np.ndarray,
                      block_mask: np.ndarray | None = None) -> float:
     """Bandouch's appearance score: covered pixels whose colour bits match the triangle's clusters.

@@ -54,7 +54,12 @@ Estimate (``estimate``): ``"mean"`` (default), the weighted mean of the final we
 are smoother), or ``"best"``, the particle of highest weight.
 
 Score of a frame: the summed silhouette XOR count of the estimate (one extra evaluation, included in
-``FrameEstimate.evaluations``).
+``FrameEstimate.evaluations``). One more engine call per frame, not counted as an evaluation
+(it does not steer the filter), gives ``info["iou"]``: the per-camera silhouette IoU of the
+estimate against the frame's foreground over the unblocked pixels, counted at ``iou_tile``
+pixels (:meth:`SilhouetteLikelihood.silhouette_iou`, channel ``model``), a quality figure that
+needs no ground truth (``gltrack eval`` summarises it). ``info["quality"]`` (XOR over
+foreground pixels at the tracking tile) is what the runner's loss detection reads.
 """
 from __future__ import annotations
 
@@ -131,6 +136,9 @@ class MultiviewOptions(Options):
         degrees) refined on its own by a hierarchical sampler (``particles / (2 init_keep)``
         particles each, at least 50)
     init_rounds : ``--init auto``: steps of that sampler per refined pose
+    iou_tile : resolution (power of two, pixels per side) at which ``info["iou"]`` is counted;
+        0 = the tracking ``tile``. 256 by default: at 64 px a limb is 2-3 pixels wide, so the
+        IoU would measure the tile more than the fit; 256 px costs one render of one pose
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -157,6 +165,7 @@ class MultiviewOptions(Options):
     init_headings: int = 12
     init_keep: int = 3
     init_rounds: int = 1
+    iou_tile: int = 256
 
     def problems(self):
         bad = super().problems() + [
@@ -175,6 +184,9 @@ class MultiviewOptions(Options):
         t = self.tile
         if t < 16 or t > 512 or t & (t - 1):
             bad.append(f"tile = {t} (a power of two in 16..512)")
+        t = self.iou_tile
+        if t and (t < 16 or t > 512 or t & (t - 1)):
+            bad.append(f"iou_tile = {t} (0, or a power of two in 16..512)")
         return bad
 
 
@@ -428,18 +440,21 @@ class MultiviewTracker(Tracker):
         x = self.body.dofs.validate(x)[0]
         self.velocity, self.last = x - self.last, x
         e_s, c_a = self.scores(x[None])
+        e_s, c_a = float(e_s[0]), None if c_a is None else float(c_a[0])
+        iou = self.likelihood.silhouette_iou(x, self.opt.iou_tile or None)
         self.frames_done += 1
         k = self.opt.appearance_refine
         if self.appearance is not None and k and self.frames_done % k == 0:
             self.likelihood.refine_appearance(x, images, fgs)
-        info = {"e_s": float(e_s[0]), "foreground_px": self.area,
-                "quality": float(e_s[0]) / max(self.area, 1.0),
+        info = {"e_s": e_s, "foreground_px": self.area,
+                "quality": e_s / max(self.area, 1.0),
+                "iou": [round(float(v), 4) for v in iou],
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if c_a is not None:
-            info["c_a"] = float(c_a[0])
+            info["c_a"] = c_a
         if "pipeline_weight" in res.info:
             info["pipeline_weight"] = res.info["pipeline_weight"]
-        return FrameEstimate(x, float(e_s[0]), int(res.evaluations) + 1, info)
+        return FrameEstimate(x, e_s, int(res.evaluations) + 1, info)
 
     def close(self):
         self.likelihood.release()
