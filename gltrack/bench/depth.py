@@ -134,7 +134,7 @@ def limb_error(res, gt, part: str) -> np.ndarray:
 
 def _targets(clips: dict) -> dict:
     """The issue's accuracy targets, on the smoothed likelihood."""
-    rows = {c: v["runs"] for c, v in clips.items() if "runs" in v}
+    rows = {c: v["runs"] for c, v in clips.items() if v.get("runs")}
     out = {"likelihood": "smoothed", "clips": sorted(rows)}
     if not rows:
         out["skipped"] = "no clip was run"

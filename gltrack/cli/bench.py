@@ -70,9 +70,8 @@ def _suite(name):
 def run(args):
     bench, fmt = _suite(args.suite)
     res = bench(args)
-    text = fmt(res)
-    if args.json:
+    if args.json:  # before the table: the figures are kept whatever the formatting does
         Path(args.json).write_text(json.dumps(res, indent=2, default=float) + "\n")
-    print(text)
+    print(fmt(res))
     sys.stdout.flush()
     return 0
