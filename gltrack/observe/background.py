@@ -248,10 +248,10 @@ def shadow_test(yuv, mean, var, low: float = 0.4, high: float = 0.95,
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         r = yuv[..., 0] / mean[..., 0]
-    darker = (r >= low) & (r <= high)
-    tol = chroma + 3.0 * np.sqrt(var[..., 1:])
-    dc = np.abs((yuv[..., 1:] - 128.0) - r[..., None] * (mean[..., 1:] - 128.0))
-    return darker & np.all(dc <= tol, axis=2)
+        darker = (r >= low) & (r <= high)
+        tol = chroma + 3.0 * np.sqrt(var[..., 1:])
+        dc = np.abs((yuv[..., 1:] - 128.0) - r[..., None] * (mean[..., 1:] - 128.0))
+        return darker & np.all(dc <= tol, axis=2)
 
 
 def clean_mask(mask, morph_size: int = 3, min_area: int = 20,
