@@ -13,8 +13,10 @@ on their own (``cues=``):
    ``threshold`` noise standard deviations (per-pixel temporal spread plus a global sensor noise,
    both estimated robustly from the sequence), cleaned by :func:`~.background.clean_mask`.
 2. **shadows**: a candidate pixel that is dimmer than the background with the same chromaticity
-   (:func:`~.background.shadow_test`) is background; after the colour refinement the same test
-   vetoes pixels outside the visual hull's reprojection.
+   (:func:`~.background.shadow_test`) is left out of the visual hull's carving; it comes back
+   where the hull's reprojection covers it (dark clothes in front of a lighter wall of the same
+   hue pass the shadow test in one view, not in all), and after the colour refinement the same
+   test vetoes pixels outside the hull's reprojection.
 3. **hull** (multi-view consistency): the candidate masks of a frame are carved into a visual
    hull (:func:`~.voxels.carve`) over the volume the cameras share (:func:`shared_volume`),
    allowing ``hull_tolerance`` cameras to miss a voxel; only the hull's largest 26-connected
@@ -28,8 +30,8 @@ on their own (``cues=``):
    everything farther sure background. Its colour models fill holes where clothes match the
    background and grow the mask over still parts the temporal background missed.
 
-``passes`` (default 2) repeats the whole chain with the previous pass's masks (dilated) added to
-the person masks, so the background estimate no longer averages the subject in; a tracker can
+``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
+masks (their convex hull per view, dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
 pass the projected silhouettes of its model as ``person_masks`` for the same effect.
 
 Every image is processed at a reduced working resolution (long side ``work_size`` pixels) with the
@@ -270,6 +272,9 @@ class ForegroundParams:
         the moving limbs and head); farther ones (another person, furniture) are dropped.
     grabcut_iterations : int
         GrabCut iterations (2: its colour models settle after one or two).
+    grabcut_max_pixels : int
+        A larger GrabCut crop is downscaled to this many pixels (its cost is linear in pixels;
+        30000 is ~120 x 250, a standing person at ``work_size`` 480 with its band).
     shadow_low, shadow_high, shadow_chroma :
         The shadow test (:func:`~.background.shadow_test`): luminance ratio range, chroma
         tolerance in grey levels.
@@ -295,6 +300,7 @@ class ForegroundParams:
     body_margin: float = 0.15
     body_reach: float = 0.5
     grabcut_iterations: int = 2
+    grabcut_max_pixels: int = 30000
     shadow_low: float = 0.4
     shadow_high: float = 0.95
     shadow_chroma: float = 8.0
@@ -525,22 +531,34 @@ class SequenceForeground:
         return np.maximum(sigma ** 2, np.where(known[..., None], spread, 0.0) ** 2)
 
     def candidates(self, c, bg, var, shadows: bool = True):
-        """(T, h, w) bool candidate foreground of camera c against background ``bg`` (BGR)
-        with noise variance ``var`` (:meth:`noise_var`)."""
+        """Candidate foreground of camera c against background ``bg`` (BGR) with noise variance
+        ``var`` (:meth:`noise_var`).
+
+        Returns
+        -------
+        cand : (T, h, w) bool, without the pixels the shadow test calls shadow (if ``shadows``)
+        raw : (T, h, w) bool, before the shadow test (the same array when not ``shadows``)
+        shadow : (T, h, w) bool, the shadow test's verdict (all False when not ``shadows``)
+        """
         p = self.params
         bgy = bgr_to_yuv(bg)
         inv = (1.0 / var).astype(np.float32)
         h, w = bg.shape[:2]
         min_area = max(int(p.min_area * h * w), 1)
         out = np.zeros((self.T, h, w), bool)
+        raw = np.zeros((self.T, h, w), bool) if shadows else out
+        shadow = np.zeros((self.T, h, w), bool)
         for t in range(self.T):
             yuv = self.frame_yuv(c, t)
             d = yuv - bgy
             fg = np.einsum("hwk,hwk,hwk->hw", d, d, inv) > p.threshold ** 2
             if shadows:
-                fg &= ~shadow_test(yuv, bgy, var, p.shadow_low, p.shadow_high, p.shadow_chroma)
+                raw[t] = clean_mask(fg, p.morph_size, min_area)
+                shadow[t] = shadow_test(yuv, bgy, var, p.shadow_low, p.shadow_high,
+                                        p.shadow_chroma)
+                fg &= ~shadow[t]
             out[t] = clean_mask(fg, p.morph_size, min_area)
-        return out
+        return out, raw, shadow
 
     # ------------------------------------------------------------------------ cue 2: the hull
     def hull(self, masks_t):
@@ -624,14 +642,27 @@ class SequenceForeground:
         if bgish.sum() < 16 or (~bgish).sum() < 16:
             return None
         bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+        crop = np.ascontiguousarray(img[r0:r1, c0:c1])
+        full = gc.shape
+        area = full[0] * full[1]
+        cap = int(self.params.grabcut_max_pixels)
+        if cap > 0 and area > cap:  # bound the cost: GrabCut is linear in pixels
+            s = np.sqrt(cap / area)
+            size = (max(int(full[1] * s), 1), max(int(full[0] * s), 1))
+            crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
+            gc = cv2.resize(gc, size, interpolation=cv2.INTER_NEAREST)
         try:
-            cv2.grabCut(np.ascontiguousarray(img[r0:r1, c0:c1]), gc, None, bgd, fgd,
-                        int(self.params.grabcut_iterations), cv2.GC_INIT_WITH_MASK)
+            cv2.grabCut(crop, gc, None, bgd, fgd, int(self.params.grabcut_iterations),
+                        cv2.GC_INIT_WITH_MASK)
         except cv2.error as e:  # degenerate colour models (e.g. a flat crop)
             log.debug("grabCut failed on camera %d frame %d: %s", c, t, e)
             return None
+        fg = ((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)).astype(np.uint8)
+        if fg.shape != full:
+            fg = cv2.resize(fg, (full[1], full[0]), interpolation=cv2.INTER_NEAREST)
         out = np.zeros((h, w), bool)
-        out[r0:r1, c0:c1] = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+        out[r0:r1, c0:c1] = fg.astype(bool)
+        out |= seed_sure
         return out
 
     # ------------------------------------------------------------------------ one pass
@@ -655,7 +686,7 @@ class SequenceForeground:
             raise ValueError(f"cues must be a subset of {CUES}, got {sorted(bad)}")
         p = self.params
         C, T = len(self.cameras), self.T
-        bgs, knowns, cand, shadow_ref = [], [], [], []
+        bgs, knowns, cand, raw, shadow = [], [], [], [], []
         for c in range(C):
             ex = None if exclude is None else exclude[c]
             bg, spread, known = self.background(c, ex)
@@ -663,8 +694,10 @@ class SequenceForeground:
             knowns.append(known)
             bgy = bgr_to_yuv(bg)
             var = self.noise_var(c, bgy, spread, known)
-            cand.append(self.candidates(c, bg, var, "shadows" in cues))
-            shadow_ref.append((bgy, var))
+            cs, cr, sh = self.candidates(c, bg, var, "shadows" in cues)
+            cand.append(cs)
+            raw.append(cr)
+            shadow.append(sh)
         stages = {"candidate": cand}
         if "hull" not in cues and "grabcut" not in cues:
             return [m.copy() for m in cand], stages, bgs, knowns
@@ -676,7 +709,10 @@ class SequenceForeground:
                 sil, depths[t] = self.hull([cand[c][t] for c in range(C)])
                 for c in range(C):
                     sils[c][t] = sil[c]
-                    hullm[c][t] = cand[c][t] & _dilate(sil[c], p.hull_margin)
+                    # the hull is carved from shadow-free candidates; a pixel the shadow test
+                    # took (dark clothes on a lighter wall of the same hue) comes back where
+                    # the other views put the body
+                    hullm[c][t] = raw[c][t] & _dilate(sil[c], p.hull_margin)
             else:
                 for c in range(C):
                     hullm[c][t] = cand[c][t]
@@ -706,11 +742,7 @@ class SequenceForeground:
         stages["grabcut"] = [m.copy() for m in out]
         if "shadows" in cues:
             for c in range(C):
-                bgy, var = shadow_ref[c]
-                for t in range(T):
-                    yuv = self.frame_yuv(c, t)
-                    sh = shadow_test(yuv, bgy, var, p.shadow_low, p.shadow_high, p.shadow_chroma)
-                    out[c][t] &= ~(sh & ~sils[c][t])
+                out[c] &= ~(shadow[c] & ~sils[c])
         h_min = [max(int(p.min_area * m.shape[1] * m.shape[2]), 1) for m in out]
         for c in range(C):
             for t in range(T):
@@ -731,11 +763,16 @@ class SequenceForeground:
         given = [None if g is None else self._dilate_stack(g) for g in given]
         exclude = given if any(g is not None for g in given) else None
         for k in range(passes):
-            masks, stages, bgs, knowns = self.run_pass(exclude, cues)
+            # GrabCut refines the last pass only: an earlier pass just has to say which region
+            # to leave out of the next background, which the hull-consistent masks do
+            use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
+            masks, stages, bgs, knowns = self.run_pass(exclude, use)
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
-            exclude = [self._dilate_stack(m) | (False if g is None else g)
-                       for m, g in zip(masks, given)]
+            # the next background leaves out the region the body spans in each view (the
+            # convex hull of its mask): a part that never moved sits between moving ones
+            exclude = [self._dilate_stack(np.stack([_convex_fill(f) for f in m]))
+                       | (False if g is None else g) for m, g in zip(masks, given)]
         return ForegroundResult(masks, list(self.cameras), bgs, knowns, stages,
                                 list(self.full_size))
 
