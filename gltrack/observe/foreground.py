@@ -25,9 +25,10 @@ on their own (``cues=``):
    behind, a desk, a chart - has no hull and goes.
 4. **grabcut** (colour refinement seeded by a silhouette): OpenCV's GrabCut, per camera and frame,
    on a crop around the seed: the hull-consistent candidate (eroded) is sure foreground, the rest
-   of the hull reprojection and the unknown-background pixels "probably foreground", a band of
-   ``body_margin`` metres (projected at the subject's depth) around them "probably background",
-   everything farther sure background. Its colour models fill holes where clothes match the
+   of it and the unknown-background pixels near it "probably foreground"; the hull's
+   reprojection, the 2-D convex hull of the seed and a band of ``body_margin`` metres (projected
+   at the subject's depth) around them "probably background"; everything farther sure
+   background. Its colour models fill holes where clothes match the
    background and grow the mask over still parts the temporal background missed.
 
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
@@ -267,9 +268,10 @@ class ForegroundParams:
         subject's depth: about a limb's thickness, the largest part of a body a seed from
         masks that agree in 3 views can miss.
     body_reach : float, metres
-        Hull components within this distance of the largest are parts of the same body (a
-        torso that did not move leaves a gap of at most its half-width, ~0.2-0.3 m, between
-        the moving limbs and head); farther ones (another person, furniture) are dropped.
+        Hull components within this distance of the largest are parts of the same body: a
+        torso that did not move leaves a gap of at most its length, ~0.6-0.7 m from the hips
+        (legs) to the neck (head, arms), between the moving parts; farther ones (another
+        person, furniture) are dropped.
     grabcut_iterations : int
         GrabCut iterations (2: its colour models settle after one or two).
     grabcut_max_pixels : int
@@ -298,7 +300,7 @@ class ForegroundParams:
     hull_tolerance: int | None = None
     hull_margin: int = 3
     body_margin: float = 0.15
-    body_reach: float = 0.5
+    body_reach: float = 0.8
     grabcut_iterations: int = 2
     grabcut_max_pixels: int = 30000
     shadow_low: float = 0.4
@@ -578,8 +580,11 @@ class SequenceForeground:
         empty = [np.zeros((c.height, c.width), bool) for c in self.cameras]
         if sum(bool(m.any()) for m in masks_t) < C - self.tolerance:
             return empty, np.full(C, np.nan)
-        vox = carve(self.cameras, masks_t, self.bounds, base=16, max_depth=p.hull_levels,
-                    tolerance=self.tolerance)
+        # voxels far outside a camera's view can overflow its distortion polynomial; they are
+        # classified "background" there either way (the box falls off the image)
+        with np.errstate(invalid="ignore", over="ignore"):
+            vox = carve(self.cameras, masks_t, self.bounds, base=16, max_depth=p.hull_levels,
+                        tolerance=self.tolerance)
         if len(vox) == 0:
             return empty, np.full(C, np.nan)
         L = int(p.hull_levels)
@@ -607,7 +612,8 @@ class SequenceForeground:
         centroid = (lo + 0.5 * size[:, None]).T @ size ** 3 / np.sum(size ** 3)
         sil, depth = [], np.zeros(C)
         for cam in self.cameras:
-            front, lo_px, hi_px = pixel_boxes(cam, lo, size, True)
+            with np.errstate(invalid="ignore", over="ignore"):
+                front, lo_px, hi_px = pixel_boxes(cam, lo, size, True)
             sil.append(fill_boxes((cam.height, cam.width), lo_px[front], hi_px[front]))
             depth[self.cameras.index(cam)] = float(cam.depth_of(centroid[None])[0])
         return sil, depth
@@ -727,9 +733,11 @@ class SequenceForeground:
             for t in range(T):
                 sure = _erode(hullm[c][t], 1)
                 seed = sils[c][t] | hullm[c][t]
-                prob = seed & ~sure
-                # the body between its parts (a still torso between moving limbs): the seed's
-                # convex hull is "probably background" unless GrabCut's colours claim it
+                # the hull's reprojection (voxel boxes) is blocky: it bounds the body, so it is
+                # "probably background" like the seed's convex hull (the body between its
+                # parts, e.g. a still torso between moving limbs), unless GrabCut's colours
+                # claim it; only the hull-consistent candidates are "probably foreground"
+                prob = hullm[c][t] & ~sure
                 region = _convex_fill(seed)
                 prob |= ~knowns[c] & _dilate(sils[c][t] | hullm[c][t], p.hull_margin)
                 d = depths[t, c]
