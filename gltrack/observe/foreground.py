@@ -7,11 +7,12 @@ on their own (``cues=``):
 
 1. **Temporal background** (always on): per camera, the per-channel median of the frames with
    the pixels where a *person mask* says the subject is left out (a masked median). Pixels
-   excluded in almost every frame have no observed background ("unknown", filled by
-   inpainting so the later steps have a value, and treated as "probably subject"). The
-   candidate foreground of a frame is its normalised YUV distance to that background above
-   ``threshold`` noise standard deviations (per-pixel temporal spread plus a global sensor noise,
-   both estimated robustly from the sequence), cleaned by :func:`~.background.clean_mask`.
+   excluded in almost every frame have no observed background ("unknown", ``known`` False,
+   filled by inpainting so the later steps have a value). Every frame is blurred a little and
+   its exposure matched to the background (a robust affine fit per YUV channel). The candidate
+   foreground of a frame is its normalised YUV distance to that background above ``threshold``
+   noise standard deviations (a global sensor noise, raised per pixel by a robust temporal
+   spread), cleaned by :func:`~.background.clean_mask`.
 2. **shadows**: a candidate pixel that is dimmer than the background with the same chromaticity
    (:func:`~.background.shadow_test`) is left out of the visual hull's carving; it comes back
    where the hull's reprojection covers it (dark clothes in front of a lighter wall of the same
@@ -25,7 +26,7 @@ on their own (``cues=``):
    behind, a desk, a chart - has no hull and goes.
 4. **grabcut** (colour refinement seeded by a silhouette): OpenCV's GrabCut, per camera and frame,
    on a crop around the seed: the hull-consistent candidate (eroded) is sure foreground, the rest
-   of it and the unknown-background pixels near it "probably foreground"; the hull's
+   of it "probably foreground"; the hull's
    reprojection, the 2-D convex hull of the seed and a band of ``body_margin`` metres (projected
    at the subject's depth) around them "probably background"; everything farther sure
    background. Its colour models fill holes where clothes match the
@@ -739,7 +740,6 @@ class SequenceForeground:
                 # claim it; only the hull-consistent candidates are "probably foreground"
                 prob = hullm[c][t] & ~sure
                 region = _convex_fill(seed)
-                prob |= ~knowns[c] & _dilate(sils[c][t] | hullm[c][t], p.hull_margin)
                 d = depths[t, c]
                 if not np.isfinite(d) or d <= 0:
                     band = int(round(0.05 * max(cam.width, cam.height)))
