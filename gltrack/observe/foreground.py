@@ -41,9 +41,20 @@ cameras scaled to it (:meth:`~gltrack.camera.Camera.scaled`); masks come back at
 (:meth:`ForegroundResult.mask_at` resizes them). Distortion is kept: masks belong to the raw
 (distorted) images.
 
-Limits: a part of the subject that never moves *and* is not bounded by the hull (e.g. the torso
-of someone seated when only the hands move) is recovered only as far as GrabCut's colour models
-reach within ``body_margin`` of the hull; a tracker's silhouettes (``person_masks``) are the cure.
+Limits (measured, see the foreground section of docs/ARCHITECTURE.md):
+
+* a part of the subject that never moves *and* is not bounded by the hull (the torso of someone
+  seated when only the hands move) is recovered only as far as GrabCut's colour models reach in
+  the seed's convex hull and ``body_margin`` band; a tracker's silhouettes (``person_masks``)
+  are the cure;
+* the "ghost" of the subject in the temporal background (where the body was in most frames) is
+  a multi-view consistent shape, so the hull keeps it too: masks overgrow into it until a
+  later pass or the tracker's silhouettes take the subject out of the background;
+* the chromaticity shadow test cannot tell grey or dark neutral clothes on a lighter neutral
+  floor from a shadow; the hull restores such pixels only where at least ``C - hull_tolerance``
+  views do not call them shadow;
+* a moving object that all cameras see (a box carried past, a held board) is a legitimate hull
+  component; the largest component within ``body_reach`` is kept, whatever it is.
 """
 from __future__ import annotations
 
