@@ -575,12 +575,16 @@ class SequenceForeground:
         return out, raw, shadow
 
     # ------------------------------------------------------------------------ cue 2: the hull
-    def hull(self, masks_t):
+    def hull(self, masks_t, strong_t=None):
         """Main component of the visual hull of one frame's masks and its reprojections.
 
         Parameters
         ----------
         masks_t : list (C) of (h, w) bool
+        strong_t : list (C) of (h, w) bool, optional
+            Stricter masks (the candidates without shadow pixels): a hull voxel must also be
+            foreground in at least 2 of them. A cast shadow is called shadow in every view and
+            goes; dark clothes called shadow in some views stay.
 
         Returns
         -------
@@ -604,6 +608,17 @@ class SequenceForeground:
         shape = fine.max(axis=0) + 1
         grid = np.zeros(shape, bool)
         grid[tuple(fine.T)] = True
+        if strong_t is not None:
+            with np.errstate(invalid="ignore", over="ignore"):
+                strong = carve(self.cameras, strong_t, self.bounds, base=16,
+                               max_depth=p.hull_levels, tolerance=max(C - 2, self.tolerance))
+            s_ijk = strong.at_level(L) if len(strong) else np.zeros((0, 3), np.int64)
+            s_ijk = s_ijk[np.all(s_ijk < shape, axis=1)]
+            sgrid = np.zeros(shape, bool)
+            sgrid[tuple(s_ijk.T)] = True
+            grid &= sgrid
+            if not grid.any():
+                return empty, np.full(C, np.nan)
         labels, n = ndimage.label(grid, structure=np.ones((3, 3, 3)))
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
@@ -616,11 +631,17 @@ class SequenceForeground:
             dist = ndimage.distance_transform_edt(labels != main) * fine_size
             near = ndimage.minimum(dist, labels, np.arange(1, n + 1))
             parts = [i + 1 for i in range(n) if near[i] <= p.body_reach]
-        # a kept voxel belongs to the component of its first finest cell
-        first = vox.ijk * (1 << (L - vox.level))[:, None]
-        keep = np.isin(labels[tuple(first.T)], parts)
-        lo = vox.origin + vox.ijk[keep] * vox.size[keep][:, None]
-        size = vox.size[keep]
+        if strong_t is None:
+            # a kept voxel belongs to the component of its first finest cell
+            first = vox.ijk * (1 << (L - vox.level))[:, None]
+            keep = np.isin(labels[tuple(first.T)], parts)
+            lo = vox.origin + vox.ijk[keep] * vox.size[keep][:, None]
+            size = vox.size[keep]
+        else:  # the intersection cut coarse voxels: use the finest cells
+            cells = np.argwhere(np.isin(labels, parts))
+            fine_size = vox.size0 / (1 << L)
+            lo = vox.origin + cells * fine_size
+            size = np.full(len(cells), fine_size)
         centroid = (lo + 0.5 * size[:, None]).T @ size ** 3 / np.sum(size ** 3)
         sil, depth = [], np.zeros(C)
         for cam in self.cameras:
@@ -724,7 +745,8 @@ class SequenceForeground:
         depths = np.full((T, C), np.nan)
         for t in range(T):
             if "hull" in cues:
-                sil, depths[t] = self.hull([cand[c][t] for c in range(C)])
+                strong = [cand[c][t] for c in range(C)] if "shadows" in cues else None
+                sil, depths[t] = self.hull([raw[c][t] for c in range(C)], strong)
                 for c in range(C):
                     sils[c][t] = sil[c]
                     # the hull is carved from shadow-free candidates; a pixel the shadow test
