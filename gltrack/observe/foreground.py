@@ -14,10 +14,12 @@ on their own (``cues=``):
    noise standard deviations (a global sensor noise, raised per pixel by a robust temporal
    spread), cleaned by :func:`~.background.clean_mask`.
 2. **shadows**: a candidate pixel that is dimmer than the background with the same chromaticity
-   (:func:`~.background.shadow_test`) is left out of the visual hull's carving; it comes back
-   where the hull's reprojection covers it (dark clothes in front of a lighter wall of the same
-   hue pass the shadow test in one view, not in all), and after the colour refinement the same
-   test vetoes pixels outside the hull's reprojection.
+   (:func:`~.background.shadow_test`) is "shadow". The hull is carved from all candidates, but a
+   voxel must also be foreground in at least 2 views' shadow-free candidates: a cast shadow is
+   shadow in every view and goes, while dark or grey clothes that pass the shadow test in some
+   views (a lighter background of the same hue behind them) stay; without the hull cue shadow
+   pixels are simply dropped. After the colour refinement the test vetoes pixels outside the
+   hull's reprojection.
 3. **hull** (multi-view consistency): the candidate masks of a frame are carved into a visual
    hull (:func:`~.voxels.carve`) over the volume the cameras share (:func:`shared_volume`),
    allowing ``hull_tolerance`` cameras to miss a voxel; only the hull's largest 26-connected
@@ -51,8 +53,8 @@ Limits (measured, see the foreground section of docs/ARCHITECTURE.md):
   a multi-view consistent shape, so the hull keeps it too: masks overgrow into it until a
   later pass or the tracker's silhouettes take the subject out of the background;
 * the chromaticity shadow test cannot tell grey or dark neutral clothes on a lighter neutral
-  floor from a shadow; the hull restores such pixels only where at least ``C - hull_tolerance``
-  views do not call them shadow;
+  floor from a shadow; the hull keeps such parts only where at least 2 views do not call them
+  shadow;
 * a moving object that all cameras see (a box carried past, a held board) is a legitimate hull
   component; the largest component within ``body_reach`` is kept, whatever it is.
 """
