@@ -35,7 +35,7 @@ on their own (``cues=``):
    background and grow the mask over still parts the temporal background missed.
 
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
-masks (their convex hull per view, dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
+masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
 pass the projected silhouettes of its model as ``person_masks`` for the same effect.
 
 Every image is processed at a reduced working resolution (long side ``work_size`` pixels) with the
@@ -68,7 +68,7 @@ import numpy as np
 from scipy import ndimage
 
 from .background import bgr_to_yuv, check_bgr, clean_mask, shadow_test
-from .voxels import carve, pixel_boxes
+from .voxels import carve, centre_pixels, pixel_boxes
 
 log = logging.getLogger(__name__)
 
@@ -611,14 +611,15 @@ class SequenceForeground:
         grid = np.zeros(shape, bool)
         grid[tuple(fine.T)] = True
         if strong_t is not None:
-            with np.errstate(invalid="ignore", over="ignore"):
-                strong = carve(self.cameras, strong_t, self.bounds, base=16,
-                               max_depth=p.hull_levels, tolerance=max(C - 2, self.tolerance))
-            s_ijk = strong.at_level(L) if len(strong) else np.zeros((0, 3), np.int64)
-            s_ijk = s_ijk[np.all(s_ijk < shape, axis=1)]
-            sgrid = np.zeros(shape, bool)
-            sgrid[tuple(s_ijk.T)] = True
-            grid &= sgrid
+            # the pixel under each cell's centre must be a strong candidate in 2 views
+            cells = np.argwhere(grid)
+            centres = vox.origin + (cells + 0.5) * (vox.size0 / (1 << L))
+            votes = np.zeros(len(cells), np.int32)
+            for cam, m in zip(self.cameras, strong_t):
+                with np.errstate(invalid="ignore", over="ignore"):
+                    ok, px = centre_pixels(cam, centres, True)
+                votes[ok] += m[px[ok, 1], px[ok, 0]]
+            grid[tuple(cells[votes < 2].T)] = False
             if not grid.any():
                 return empty, np.full(C, np.nan)
         labels, n = ndimage.label(grid, structure=np.ones((3, 3, 3)))
@@ -812,9 +813,10 @@ class SequenceForeground:
             masks, stages, bgs, knowns = self.run_pass(exclude, use)
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
-            # the next background leaves out the region the body spans in each view (the
-            # convex hull of its mask): a part that never moved sits between moving ones
-            exclude = [self._dilate_stack(np.stack([_convex_fill(f) for f in m]))
+            # the next background leaves out this pass's masks (dilated). Their convex hull
+            # would also take out a still torso between moving limbs, but leaves so much
+            # background unobserved (inpainted) that the masks overgrow into it (caliscope take)
+            exclude = [self._dilate_stack(m)
                        | (False if g is None else g) for m, g in zip(masks, given)]
         return ForegroundResult(masks, list(self.cameras), bgs, knowns, stages,
                                 list(self.full_size))
