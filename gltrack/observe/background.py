@@ -211,13 +211,8 @@ class BackgroundModel:
         return fg
 
     def _shadow(self, yuv, var):
-        mu = self._mean
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = yuv[..., 0] / mu[..., 0]
-        darker = (r >= self.shadow_low) & (r <= self.shadow_high)
-        tol = self.shadow_chroma + 3.0 * np.sqrt(var[..., 1:])
-        chroma = np.abs((yuv[..., 1:] - 128.0) - r[..., None] * (mu[..., 1:] - 128.0))
-        return darker & np.all(chroma <= tol, axis=2)
+        return shadow_test(yuv, self._mean, var, self.shadow_low, self.shadow_high,
+                           self.shadow_chroma)
 
     def foreground(self, frame) -> np.ndarray:
         """Foreground mask I_F of a frame.
@@ -232,6 +227,31 @@ class BackgroundModel:
         """
         return clean_mask(self.raw_foreground(frame), self.morph_size, self.min_area,
                           self.close_size)
+
+
+def shadow_test(yuv, mean, var, low: float = 0.4, high: float = 0.95,
+                chroma: float = 8.0) -> np.ndarray:
+    """Pixels that are the background in a cast shadow: dimmer, same chromaticity.
+
+    Parameters
+    ----------
+    yuv : (H, W, 3) float, the frame in YUV (:func:`bgr_to_yuv`, 0..255)
+    mean : (H, W, 3) float, the background in YUV
+    var : (H, W, 3) float, (grey levels)^2, the background's variance per channel
+    low, high : float, range of the luminance ratio ``Y / mean_Y`` of a shadow
+    chroma : float, grey levels, allowed change of ``(U - 128, V - 128)`` beyond the ratio's
+        scaling (plus 3 background standard deviations)
+
+    Returns
+    -------
+    (H, W) bool, True = shadow (see the module docstring)
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = yuv[..., 0] / mean[..., 0]
+        darker = (r >= low) & (r <= high)
+        tol = chroma + 3.0 * np.sqrt(var[..., 1:])
+        dc = np.abs((yuv[..., 1:] - 128.0) - r[..., None] * (mean[..., 1:] - 128.0))
+        return darker & np.all(dc <= tol, axis=2)
 
 
 def clean_mask(mask, morph_size: int = 3, min_area: int = 20,

@@ -1,0 +1,858 @@
+"""Foreground masks of a synchronised multi-camera sequence that has no empty-scene frames.
+
+Real recordings rarely start with the scene empty, and a subject who barely moves stays in any
+per-pixel temporal median of the sequence. :func:`estimate_foreground` (and the
+:class:`SequenceForeground` behind it) combines cues that can each be switched off and measured
+on their own (``cues=``):
+
+1. **Temporal background** (always on): per camera, the per-channel median of the frames with
+   the pixels where a *person mask* says the subject is left out (a masked median). Pixels
+   excluded in almost every frame have no observed background ("unknown", ``known`` False,
+   filled by inpainting so the later steps have a value). Every frame is blurred a little and
+   its exposure matched to the background (a robust affine fit per YUV channel). The candidate
+   foreground of a frame is its normalised YUV distance to that background above ``threshold``
+   noise standard deviations (a global sensor noise, raised per pixel by a robust temporal
+   spread), cleaned by :func:`~.background.clean_mask`.
+2. **shadows**: a candidate pixel that is dimmer than the background with the same chromaticity
+   (:func:`~.background.shadow_test`) is "shadow". The hull is carved from all candidates, but a
+   voxel must also be foreground in at least 2 views' shadow-free candidates: a cast shadow is
+   shadow in every view and goes, while dark or grey clothes that pass the shadow test in some
+   views (a lighter background of the same hue behind them) stay; without the hull cue shadow
+   pixels are simply dropped. After the colour refinement the test vetoes pixels outside the
+   hull's reprojection.
+3. **hull** (multi-view consistency): the candidate masks of a frame are carved into a visual
+   hull (:func:`~.voxels.carve`) over the volume the cameras share (:func:`shared_volume`),
+   allowing ``hull_tolerance`` cameras to miss a voxel; only the hull's largest 26-connected
+   component is kept, and each camera keeps only the candidate pixels near that component's
+   reprojection. A blob that one camera (or two, with 4 cameras) sees alone - a person walking
+   behind, a desk, a chart - has no hull and goes.
+4. **grabcut** (colour refinement seeded by a silhouette): OpenCV's GrabCut, per camera and frame,
+   on a crop around the seed: the hull-consistent candidate (eroded) is sure foreground, the rest
+   of it "probably foreground"; the hull's
+   reprojection, the 2-D convex hull of the seed and a band of ``body_margin`` metres (projected
+   at the subject's depth) around them "probably background"; everything farther sure
+   background. Its colour models fill holes where clothes match the
+   background and grow the mask over still parts the temporal background missed.
+
+``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
+masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
+pass the projected silhouettes of its model as ``person_masks`` for the same effect.
+
+Every image is processed at a reduced working resolution (long side ``work_size`` pixels) with the
+cameras scaled to it (:meth:`~gltrack.camera.Camera.scaled`); masks come back at that resolution
+(:meth:`ForegroundResult.mask_at` resizes them). Distortion is kept: masks belong to the raw
+(distorted) images.
+
+Limits (measured, see the foreground section of docs/ARCHITECTURE.md):
+
+* a part of the subject that never moves *and* is not bounded by the hull (the torso of someone
+  seated when only the hands move) is recovered only as far as GrabCut's colour models reach in
+  the seed's convex hull and ``body_margin`` band; a tracker's silhouettes (``person_masks``)
+  are the cure;
+* the "ghost" of the subject in the temporal background (where the body was in most frames) is
+  a multi-view consistent shape, so the hull keeps it too: masks overgrow into it until a
+  later pass or the tracker's silhouettes take the subject out of the background;
+* the chromaticity shadow test cannot tell grey or dark neutral clothes on a lighter neutral
+  floor from a shadow; the hull keeps such parts only where at least 2 views do not call them
+  shadow;
+* a moving object that all cameras see (a box carried past, a held board) is a legitimate hull
+  component; the largest component within ``body_reach`` is kept, whatever it is.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from .background import bgr_to_yuv, check_bgr, clean_mask, shadow_test
+from .voxels import carve, centre_pixels, pixel_boxes
+
+log = logging.getLogger(__name__)
+
+CUES = ("hull", "grabcut", "shadows")
+#: first quartile of |x| for x ~ N(0, 1)
+_Q25 = 0.31864
+
+
+# --------------------------------------------------------------------------------------------
+# small helpers
+# --------------------------------------------------------------------------------------------
+def _disk(radius: int) -> np.ndarray:
+    r = max(int(radius), 1)
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def _dilate(mask, radius: int) -> np.ndarray:
+    if radius <= 0:
+        return np.asarray(mask, bool)
+    return cv2.dilate(np.asarray(mask, np.uint8), _disk(radius)).astype(bool)
+
+
+def _erode(mask, radius: int) -> np.ndarray:
+    if radius <= 0:
+        return np.asarray(mask, bool)
+    return cv2.erode(np.asarray(mask, np.uint8), _disk(radius)).astype(bool)
+
+
+def _convex_fill(mask) -> np.ndarray:
+    """(H, W) bool, the filled convex hull of a mask's pixels (all False for an empty mask)."""
+    m = np.asarray(mask, bool)
+    out = np.zeros(m.shape, np.uint8)
+    ys, xs = np.nonzero(m)
+    if len(xs):
+        pts = cv2.convexHull(np.stack([xs, ys], 1).astype(np.int32))
+        cv2.fillConvexPoly(out, pts, 1)
+    return out.astype(bool) | m
+
+
+def fill_boxes(shape, lo_px, hi_px) -> np.ndarray:
+    """(H, W) bool, the union of pixel boxes ``[lo, hi)`` (columns, rows), clipped to the image.
+
+    Parameters
+    ----------
+    shape : (H, W), pixels
+    lo_px, hi_px : (M, 2) int, first and one-past-last column / row of each box
+    """
+    H, W = shape
+    c0 = np.clip(lo_px[:, 0], 0, W)
+    c1 = np.clip(hi_px[:, 0], 0, W)
+    r0 = np.clip(lo_px[:, 1], 0, H)
+    r1 = np.clip(hi_px[:, 1], 0, H)
+    ok = (c1 > c0) & (r1 > r0)
+    c0, c1, r0, r1 = c0[ok], c1[ok], r0[ok], r1[ok]
+    d = np.zeros((H + 1, W + 1), np.int32)
+    np.add.at(d, (r0, c0), 1)
+    np.add.at(d, (r0, c1), -1)
+    np.add.at(d, (r1, c0), -1)
+    np.add.at(d, (r1, c1), 1)
+    return np.cumsum(np.cumsum(d, axis=0), axis=1)[:H, :W] > 0
+
+
+def shared_volume(cameras, min_views: int | None = None, *, samples: int = 40) -> np.ndarray:
+    """Axis-aligned box around the space at least ``min_views`` cameras see.
+
+    The cameras' optical axes are intersected in the least-squares sense; a cube around that
+    point, as large as the farthest camera is from it, is sampled on a ``samples^3`` grid and
+    the box of the points in front of and inside the image of ``min_views`` cameras is returned.
+    Scale-free: it follows the rig, whatever its units or size.
+
+    Parameters
+    ----------
+    cameras : list of gltrack.camera.Camera, at least 2
+    min_views : int, optional, default all cameras
+    samples : int, grid points along each side of the sampled cube
+
+    Returns
+    -------
+    (6,) float64, ``(xmin, ymin, zmin, xmax, ymax, zmax)`` in the cameras' world units
+    """
+    if len(cameras) < 2:
+        raise ValueError(f"shared_volume needs at least 2 cameras, got {len(cameras)}")
+    n = len(cameras) if min_views is None else int(min_views)
+    if not 1 <= n <= len(cameras):
+        raise ValueError(f"min_views must be in 1..{len(cameras)}, got {min_views}")
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c in cameras:
+        d = c.R[2]  # optical axis in the world
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c.center
+    p0 = np.linalg.lstsq(A, b, rcond=None)[0]
+    radius = max(float(np.linalg.norm(c.center - p0)) for c in cameras)
+    g = np.linspace(-radius, radius, int(samples))
+    pts = p0 + np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    seen = np.zeros(len(pts), np.int32)
+    for c in cameras:
+        z = c.depth_of(pts)
+        front = z > 1e-6 * radius
+        uv = np.full((len(pts), 2), -1.0)
+        uv[front] = c.project(pts[front], distort=False)
+        seen += front & (uv[:, 0] >= -0.5) & (uv[:, 0] <= c.width - 0.5) & \
+            (uv[:, 1] >= -0.5) & (uv[:, 1] <= c.height - 0.5)
+    keep = pts[seen >= n]
+    if len(keep) == 0:
+        raise ValueError(f"no point of space is seen by {n} of the {len(cameras)} cameras")
+    step = g[1] - g[0]
+    return np.concatenate([keep.min(axis=0) - step, keep.max(axis=0) + step])
+
+
+def _robust_affine(x, y, keep=None, rounds: int = 3):
+    """``(a, b)`` with ``y ~ a x + b`` fitted by least squares, refitted on the inliers
+    (residual within 3 robust standard deviations) ``rounds`` times; ``(1, 0)`` if degenerate."""
+    x = np.asarray(x, np.float64).ravel()
+    y = np.asarray(y, np.float64).ravel()
+    sel = np.ones(x.size, bool) if keep is None else np.asarray(keep).ravel().copy()
+    a, b = 1.0, 0.0
+    for _ in range(rounds):
+        if sel.sum() < 10 or np.ptp(x[sel]) < 1e-6:
+            return 1.0, 0.0
+        a, b = np.polyfit(x[sel], y[sel], 1)
+        r = np.abs(y - (a * x + b))
+        sel &= r <= 3.0 * max(1.4826 * np.median(r[sel]), 1.0)
+    if not 0.5 < a < 2.0:  # not an exposure change: leave the frame alone
+        return 1.0, 0.0
+    return float(a), float(b)
+
+
+def masked_median(stack, exclude=None, min_count: int = 1):
+    """Per-pixel median over frames, leaving out excluded samples.
+
+    Parameters
+    ----------
+    stack : (T, H, W, K) uint8, T frames of K channels
+    exclude : (T, H, W) bool, optional, samples to leave out (True = subject there)
+    min_count : int, fewest samples a pixel needs to count as observed
+
+    Returns
+    -------
+    median : (H, W, K) uint8, the lower median of the kept samples (of all samples where fewer
+        than ``min_count`` are kept)
+    spread : (H, W, K) float32, grey levels, a robust standard deviation: the first quartile of
+        the kept samples' absolute deviations from the median over its Gaussian value 0.3186
+        sigma. The quartile, not the median deviation: a subject who covers a pixel in a third of
+        the frames inflates the MAD several-fold, the quartile stays at the noise (up to 75 %
+        contamination on one side)
+    known : (H, W) bool, at least ``min_count`` samples kept
+    """
+    s = np.asarray(stack)
+    T = s.shape[0]
+    if exclude is None:
+        exclude = np.zeros(s.shape[:3], bool)
+    count = T - exclude.sum(axis=0)
+    known = count >= max(int(min_count), 1)
+    ex = exclude & known[None]  # where too few samples are kept, use them all
+    n = np.where(known, count, T)
+    big = np.int16(1000)
+    v = np.where(ex[..., None], big, s.astype(np.int16))
+    v.sort(axis=0)
+    k = ((n - 1) // 2)[None, :, :, None]
+    med = np.take_along_axis(v, np.broadcast_to(k, (1,) + v.shape[1:]), axis=0)[0]
+    dev = np.where(ex[..., None], big, np.abs(s.astype(np.int16) - med[None]))
+    dev.sort(axis=0)
+    k25 = ((n - 1) // 4)[None, :, :, None]
+    q25 = np.take_along_axis(dev, np.broadcast_to(k25, (1,) + v.shape[1:]), axis=0)[0]
+    return med.astype(np.uint8), (q25 / _Q25).astype(np.float32), known
+
+
+# --------------------------------------------------------------------------------------------
+# parameters and results
+# --------------------------------------------------------------------------------------------
+@dataclass
+class ForegroundParams:
+    """Settings of :func:`estimate_foreground`; every default is chosen to hold for any rig.
+
+    Attributes
+    ----------
+    work_size : int, pixels
+        Long side of the working images (480: a person a few metres away is still ~200 px tall;
+        the trackers score downscaled images anyway; 4 x 100 frames take well under a minute).
+    max_background_frames : int
+        Frames used for the temporal background (evenly spaced, or drawn by ``rng``); 50 samples
+        give a stable median and MAD while keeping the sort small.
+    threshold : float, noise standard deviations
+        A pixel is a candidate when its YUV distance to the background, normalised per channel,
+        exceeds this (4: P(chi^2_3 > 16) ~ 0.1 % for Gaussian noise).
+    min_sigma : float, grey levels
+        Floor of the global sensor noise (8-bit quantisation and video compression).
+    blur : float, pixels at ``work_size``
+        Gaussian sigma applied to every frame before the background statistics and the
+        difference test: averages independent pixel noise over ~3 x 3 pixels (a third of its
+        standard deviation) while no limb at ``work_size`` is thinner than a few pixels.
+    min_observed : float
+        Fraction of the background frames in which a pixel must be free of the subject for its
+        background to count as observed (10 %: a median over fewer samples is mostly noise).
+    morph_size : int, pixels at ``work_size``; opening / closing kernel of the candidates.
+    min_area : float
+        Smallest kept 2-D component as a fraction of the image area (1e-4: ~20 px at 480x270).
+    hull_levels : int
+        The visual hull's finest voxel is the shared volume's longest side / (16 * 2**levels)
+        (2: 64 voxels across, finer than a limb is thick in any room-sized volume).
+    hull_tolerance : int, optional
+        Cameras that may miss a hull voxel (occlusion, a colour match); default 1 with 4 or more
+        cameras, 0 with fewer (a voxel must always be seen by at least 2 cameras... or 3 of 4).
+    hull_margin : int, pixels
+        Candidate pixels within this distance of the hull's reprojection are kept (the
+        reprojection of voxel boxes is only as fine as the voxels).
+    body_margin : float, metres (the cameras' world units)
+        Width of GrabCut's "probably background" band around the seed, projected at the
+        subject's depth: about a limb's thickness, the largest part of a body a seed from
+        masks that agree in 3 views can miss.
+    body_reach : float, metres
+        Hull components within this distance of the largest are parts of the same body: a
+        torso that did not move leaves a gap of at most its length, ~0.6-0.7 m from the hips
+        (legs) to the neck (head, arms), between the moving parts; farther ones (another
+        person, furniture) are dropped.
+    grabcut_iterations : int
+        GrabCut iterations (2: its colour models settle after one or two).
+    grabcut_max_pixels : int
+        A larger GrabCut crop is downscaled to this many pixels (its cost is linear in pixels;
+        30000 is ~120 x 250, a standing person at ``work_size`` 480 with its band).
+    shadow_low, shadow_high, shadow_chroma :
+        The shadow test (:func:`~.background.shadow_test`): luminance ratio range, chroma
+        tolerance in grey levels.
+    exclude_margin : int, pixels
+        Person masks (given, or the previous pass's) are dilated by this much before they are
+        left out of the background (mask edges are never exact).
+    passes : int
+        Runs of the whole chain; each pass after the first leaves the previous pass's masks out
+        of the background estimate.
+    """
+
+    work_size: int = 480
+    max_background_frames: int = 50
+    threshold: float = 4.0
+    min_sigma: float = 2.0
+    blur: float = 1.0
+    min_observed: float = 0.1
+    morph_size: int = 3
+    min_area: float = 1e-4
+    hull_levels: int = 2
+    hull_tolerance: int | None = None
+    hull_margin: int = 3
+    body_margin: float = 0.15
+    body_reach: float = 0.8
+    grabcut_iterations: int = 2
+    grabcut_max_pixels: int = 30000
+    shadow_low: float = 0.4
+    shadow_high: float = 0.95
+    shadow_chroma: float = 8.0
+    exclude_margin: int = 5
+    passes: int = 2
+
+    def __post_init__(self):
+        if int(self.work_size) < 32:
+            raise ValueError(f"ForegroundParams.work_size must be >= 32, got {self.work_size}")
+        if not self.threshold > 0:
+            raise ValueError(f"ForegroundParams.threshold must be positive, got {self.threshold}")
+        if not 0 <= self.min_observed < 1:
+            raise ValueError(f"ForegroundParams.min_observed must be in [0, 1), got "
+                             f"{self.min_observed}")
+        if not self.body_margin >= 0:
+            raise ValueError(f"ForegroundParams.body_margin must be >= 0, got {self.body_margin}")
+        if int(self.passes) < 1:
+            raise ValueError(f"ForegroundParams.passes must be >= 1, got {self.passes}")
+        if int(self.max_background_frames) < 1:
+            raise ValueError("ForegroundParams.max_background_frames must be >= 1, got "
+                             f"{self.max_background_frames}")
+
+
+@dataclass
+class ForegroundResult:
+    """What :func:`estimate_foreground` found; C cameras, T frames, images ``h x w`` (working).
+
+    Attributes
+    ----------
+    masks : list (C) of (T, h, w) bool, the final foreground
+    cameras : list (C) of Camera, scaled to the working images
+    backgrounds : list (C) of (h, w, 3) uint8 BGR, the temporal background of the last pass
+    known : list (C) of (h, w) bool, background observed (not inpainted)
+    stages : dict, name -> list (C) of (T, h, w) bool masks of the last pass after each cue:
+        ``"candidate"`` (temporal background, with shadows removed when that cue is on),
+        ``"hull"`` (multi-view consistent candidate), ``"grabcut"`` (refined, before the final
+        shadow veto), ``"hull_silhouette"`` (reprojection of the hull's main component)
+    full_size : list (C) of (W, H), pixels, size of the input images
+    """
+
+    masks: list
+    cameras: list
+    backgrounds: list
+    known: list
+    stages: dict = field(default_factory=dict)
+    full_size: list = field(default_factory=list)
+
+    def mask_at(self, camera: int, frame: int, size=None) -> np.ndarray:
+        """(H, W) bool mask of one camera and frame at ``size`` (W, H) (default: the input's)."""
+        m = self.masks[camera][frame]
+        W, H = self.full_size[camera] if size is None else size
+        if (H, W) == m.shape:
+            return m.copy()
+        return cv2.resize(m.astype(np.uint8), (int(W), int(H)),
+                          interpolation=cv2.INTER_NEAREST).astype(bool)
+
+    def foreground_fraction(self) -> np.ndarray:
+        """(C,) float, mean fraction of each camera's image that is foreground."""
+        return np.array([float(np.mean(m)) for m in self.masks])
+
+
+# --------------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------------
+class SequenceForeground:
+    """Foreground estimation over one synchronised sequence (state kept between passes).
+
+    Parameters
+    ----------
+    frames_by_camera : sequence (C) of iterables of (H_c, W_c, 3) uint8 BGR images, T frames
+        each (generators are fine: every frame is downscaled as it arrives)
+    cameras : sequence (C) of gltrack.camera.Camera; each image must be the camera's size or a
+        uniform scaling of it (within 1 %)
+    params : ForegroundParams, optional
+    rng : numpy.random.Generator, optional; picks the background frames when there are more
+        than ``params.max_background_frames`` and seeds GrabCut (default: evenly spaced frames,
+        seed 0)
+    """
+
+    def __init__(self, frames_by_camera, cameras, params: ForegroundParams | None = None,
+                 rng=None):
+        self.params = params or ForegroundParams()
+        cameras = list(cameras)
+        feeds = list(frames_by_camera)
+        if len(feeds) != len(cameras):
+            raise ValueError(f"frames_by_camera has {len(feeds)} cameras, cameras has "
+                             f"{len(cameras)}")
+        if len(cameras) < 2:
+            raise ValueError("foreground estimation needs at least 2 cameras")
+        self.images, self.cameras, self.full_size = [], [], []
+        for cam, feed in zip(cameras, feeds):
+            imgs, cw = self._downscale(cam, feed)
+            self.images.append(imgs)
+            self.cameras.append(cw)
+        counts = {len(i) for i in self.images}
+        if len(counts) != 1 or 0 in counts:
+            raise ValueError(f"frames_by_camera: every camera needs the same, non-zero number of "
+                             f"frames, got {[len(i) for i in self.images]}")
+        self.T = counts.pop()
+        self.rng = rng
+        p = self.params
+        C = len(self.cameras)
+        self.tolerance = (1 if C >= 4 else 0) if p.hull_tolerance is None else int(p.hull_tolerance)
+        if not 0 <= self.tolerance <= C - 2:
+            raise ValueError(f"ForegroundParams.hull_tolerance must be in 0..{C - 2} with {C} "
+                             f"cameras, got {p.hull_tolerance}")
+        self.bounds = shared_volume(self.cameras, C - self.tolerance)
+        n = min(self.T, int(p.max_background_frames))
+        if rng is None:
+            self.bg_frames = np.unique(np.linspace(0, self.T - 1, n).round().astype(int))
+        else:
+            self.bg_frames = np.sort(rng.choice(self.T, n, replace=False))
+        self._seed = int(rng.integers(2 ** 31)) if rng is not None else 0
+        self._raw, self._corrected = {}, {}
+        log.debug("foreground: %d cameras x %d frames, work size %s, bounds %s", C, self.T,
+                  [(c.width, c.height) for c in self.cameras], np.round(self.bounds, 3))
+
+    def _downscale(self, cam, feed):
+        imgs, cw = [], None
+        for t, img in enumerate(feed):
+            img = check_bgr(img, f"frames_by_camera[{cam.name}][{t}]")
+            H, W = img.shape[:2]
+            if cw is None:
+                sx, sy = W / cam.width, H / cam.height
+                if abs(sx - sy) > 0.01 * max(sx, sy):
+                    raise ValueError(f"frames_by_camera[{cam.name}]: image {W}x{H} is not a "
+                                     f"uniform scaling of the camera's {cam.width}x{cam.height}")
+                s = min(1.0, self.params.work_size / max(W, H))
+                w, h = max(int(round(W * s)), 1), max(int(round(H * s)), 1)
+                cw = cam.scaled(w, h)
+                self.full_size.append((W, H))
+            elif (W, H) != self.full_size[-1]:
+                raise ValueError(f"frames_by_camera[{cam.name}][{t}]: image {W}x{H}, frame 0 "
+                                 f"was {self.full_size[-1][0]}x{self.full_size[-1][1]}")
+            if (cw.width, cw.height) != (W, H):
+                img = cv2.resize(img, (cw.width, cw.height), interpolation=cv2.INTER_AREA)
+            imgs.append(img)
+        if cw is None:
+            raise ValueError(f"frames_by_camera[{cam.name}]: no frames")
+        return np.stack(imgs), cw
+
+    # ------------------------------------------------------------------------ person masks
+    def _person_stack(self, c, person_masks):
+        """(T, h, w) bool person masks of camera c at the working size, or None."""
+        if person_masks is None or person_masks[c] is None:
+            return None
+        pm = person_masks[c]
+        if len(pm) != self.T:
+            raise ValueError(f"person_masks[{c}] has {len(pm)} frames, the sequence {self.T}")
+        cam = self.cameras[c]
+        out = np.zeros((self.T, cam.height, cam.width), bool)
+        for t, m in enumerate(pm):
+            m = np.asarray(m)
+            if m.ndim != 2:
+                raise ValueError(f"person_masks[{c}][{t}] must be (H, W), got {m.shape}")
+            if m.shape != (cam.height, cam.width):
+                m = cv2.resize(m.astype(np.uint8), (cam.width, cam.height),
+                               interpolation=cv2.INTER_NEAREST)
+            out[t] = m.astype(bool)
+        return out
+
+    # ------------------------------------------------------------------------ cue 1: background
+    def background(self, c, exclude=None):
+        """Temporal background of camera c, with every frame's exposure matched to it.
+
+        Parameters
+        ----------
+        c : int, camera index
+        exclude : (T, h, w) bool, optional, where the subject is (left out of the statistics)
+
+        Returns
+        -------
+        bg : (h, w, 3) uint8 BGR (inpainted where not known)
+        spread : (h, w, 3) float32, grey levels, per-pixel robust temporal standard deviation
+            (YUV)
+        known : (h, w) bool, background observed in enough frames
+
+        Every frame's YUV channels are mapped by a robust affine fit onto a first median
+        (auto-exposure and white-balance drift scale and shift the whole frame); the corrected
+        frames (kept for :meth:`candidates`) give the final median.
+        """
+        p = self.params
+        idx = self.bg_frames
+        raw = self._yuv(c)
+        ex = None if exclude is None else exclude[idx]
+        min_count = max(1, int(np.ceil(p.min_observed * len(idx))))
+        ref, _, _ = masked_median(raw[idx], ex, min_count)
+        corr = np.empty_like(raw)
+        sub = (slice(None, None, 4), slice(None, None, 4))
+        for t in range(self.T):
+            keep = None if exclude is None else ~exclude[t][sub]
+            out = raw[t].astype(np.float32)
+            for k in range(3):
+                a, b = _robust_affine(ref[sub + (k,)], raw[t][sub + (k,)], keep)
+                out[..., k] = (out[..., k] - b) / a
+            corr[t] = np.clip(np.round(out), 0, 255).astype(np.uint8)
+        self._corrected[c] = corr
+        med, spread, known = masked_median(corr[idx], ex, min_count)
+        bg = cv2.cvtColor(med, cv2.COLOR_YUV2BGR)
+        if not known.all():
+            bg = cv2.inpaint(bg, (~known).astype(np.uint8), 5, cv2.INPAINT_TELEA)
+        return bg, spread, known
+
+    def _yuv(self, c):
+        """(T, h, w, 3) uint8, camera c's frames blurred by ``params.blur`` in YUV (cached)."""
+        if c not in self._raw:
+            s = float(self.params.blur)
+            self._raw[c] = np.stack([cv2.cvtColor(cv2.GaussianBlur(img, (0, 0), s) if s > 0
+                                                  else img, cv2.COLOR_BGR2YUV)
+                                     for img in self.images[c]])
+        return self._raw[c]
+
+    def frame_yuv(self, c, t):
+        """(h, w, 3) float32 YUV of frame t, camera c: blurred, exposure matched to the last
+        :meth:`background` of that camera."""
+        src = self._corrected.get(c)
+        return (self._yuv(c) if src is None else src)[t].astype(np.float32)
+
+    def noise_var(self, c, bgy, spread, known):
+        """(h, w, 3) float, (grey levels)^2: the YUV noise variance of camera c's background."""
+        p = self.params
+        # global sensor noise: a robust spread of frame - background over all pixels (most are
+        # background) of the background frames
+        sample = np.stack([self.frame_yuv(c, t) - bgy for t in self.bg_frames[:10]])
+        sigma = np.maximum(1.4826 * np.median(np.abs(sample.reshape(-1, 3)), axis=0), p.min_sigma)
+        # the global noise is the floor; the per-pixel spread raises it where a pixel is noisier
+        # (flicker, edges that shimmer under compression)
+        return np.maximum(sigma ** 2, np.where(known[..., None], spread, 0.0) ** 2)
+
+    def candidates(self, c, bg, var, shadows: bool = True):
+        """Candidate foreground of camera c against background ``bg`` (BGR) with noise variance
+        ``var`` (:meth:`noise_var`).
+
+        Returns
+        -------
+        cand : (T, h, w) bool, without the pixels the shadow test calls shadow (if ``shadows``)
+        raw : (T, h, w) bool, before the shadow test (the same array when not ``shadows``)
+        shadow : (T, h, w) bool, the shadow test's verdict (all False when not ``shadows``)
+        """
+        p = self.params
+        bgy = bgr_to_yuv(bg)
+        inv = (1.0 / var).astype(np.float32)
+        h, w = bg.shape[:2]
+        min_area = max(int(p.min_area * h * w), 1)
+        out = np.zeros((self.T, h, w), bool)
+        raw = np.zeros((self.T, h, w), bool) if shadows else out
+        shadow = np.zeros((self.T, h, w), bool)
+        for t in range(self.T):
+            yuv = self.frame_yuv(c, t)
+            d = yuv - bgy
+            fg = np.einsum("hwk,hwk,hwk->hw", d, d, inv) > p.threshold ** 2
+            if shadows:
+                raw[t] = clean_mask(fg, p.morph_size, min_area)
+                shadow[t] = shadow_test(yuv, bgy, var, p.shadow_low, p.shadow_high,
+                                        p.shadow_chroma)
+                fg &= ~shadow[t]
+            out[t] = clean_mask(fg, p.morph_size, min_area)
+        return out, raw, shadow
+
+    # ------------------------------------------------------------------------ cue 2: the hull
+    def hull(self, masks_t, strong_t=None):
+        """Main component of the visual hull of one frame's masks and its reprojections.
+
+        Parameters
+        ----------
+        masks_t : list (C) of (h, w) bool
+        strong_t : list (C) of (h, w) bool, optional
+            Stricter masks (the candidates without shadow pixels): a hull voxel must also be
+            foreground in at least 2 of them. A cast shadow is called shadow in every view and
+            goes; dark clothes called shadow in some views stay.
+
+        Returns
+        -------
+        silhouettes : list (C) of (h, w) bool, reprojection of the hull's largest component
+        depth : (C,) float, depth of that component's centroid in each camera (nan if empty)
+        """
+        p = self.params
+        C = len(self.cameras)
+        empty = [np.zeros((c.height, c.width), bool) for c in self.cameras]
+        if sum(bool(m.any()) for m in masks_t) < C - self.tolerance:
+            return empty, np.full(C, np.nan)
+        # voxels far outside a camera's view can overflow its distortion polynomial; they are
+        # classified "background" there either way (the box falls off the image)
+        with np.errstate(invalid="ignore", over="ignore"):
+            vox = carve(self.cameras, masks_t, self.bounds, base=16, max_depth=p.hull_levels,
+                        tolerance=self.tolerance)
+        if len(vox) == 0:
+            return empty, np.full(C, np.nan)
+        L = int(p.hull_levels)
+        fine = vox.at_level(L)
+        shape = fine.max(axis=0) + 1
+        grid = np.zeros(shape, bool)
+        grid[tuple(fine.T)] = True
+        if strong_t is not None:
+            # the pixel under each cell's centre must be a strong candidate in 2 views
+            cells = np.argwhere(grid)
+            centres = vox.origin + (cells + 0.5) * (vox.size0 / (1 << L))
+            votes = np.zeros(len(cells), np.int32)
+            for cam, m in zip(self.cameras, strong_t):
+                with np.errstate(invalid="ignore", over="ignore"):
+                    ok, px = centre_pixels(cam, centres, True)
+                votes[ok] += m[px[ok, 1], px[ok, 0]]
+            grid[tuple(cells[votes < 2].T)] = False
+            if not grid.any():
+                return empty, np.full(C, np.nan)
+        labels, n = ndimage.label(grid, structure=np.ones((3, 3, 3)))
+        sizes = np.bincount(labels.ravel())
+        sizes[0] = 0
+        main = int(np.argmax(sizes))
+        # parts of the same body the candidates did not join (a still torso between moving
+        # limbs): components within body_reach of the largest one
+        parts = [main]
+        if n > 1 and p.body_reach > 0:
+            fine_size = vox.size0 / (1 << L)
+            dist = ndimage.distance_transform_edt(labels != main) * fine_size
+            near = ndimage.minimum(dist, labels, np.arange(1, n + 1))
+            parts = [i + 1 for i in range(n) if near[i] <= p.body_reach]
+        if strong_t is None:
+            # a kept voxel belongs to the component of its first finest cell
+            first = vox.ijk * (1 << (L - vox.level))[:, None]
+            keep = np.isin(labels[tuple(first.T)], parts)
+            lo = vox.origin + vox.ijk[keep] * vox.size[keep][:, None]
+            size = vox.size[keep]
+        else:  # the intersection cut coarse voxels: use the finest cells
+            cells = np.argwhere(np.isin(labels, parts))
+            fine_size = vox.size0 / (1 << L)
+            lo = vox.origin + cells * fine_size
+            size = np.full(len(cells), fine_size)
+        centroid = (lo + 0.5 * size[:, None]).T @ size ** 3 / np.sum(size ** 3)
+        sil, depth = [], np.zeros(C)
+        for cam in self.cameras:
+            with np.errstate(invalid="ignore", over="ignore"):
+                front, lo_px, hi_px = pixel_boxes(cam, lo, size, True)
+            sil.append(fill_boxes((cam.height, cam.width), lo_px[front], hi_px[front]))
+            depth[self.cameras.index(cam)] = float(cam.depth_of(centroid[None])[0])
+        return sil, depth
+
+    # ------------------------------------------------------------------------ cue 3: GrabCut
+    def grabcut(self, c, t, seed_sure, seed_probable, band_px, region=None):
+        """GrabCut of camera c, frame t: (h, w) bool foreground, or None when not applicable.
+
+        Parameters
+        ----------
+        seed_sure : (h, w) bool, sure foreground
+        seed_probable : (h, w) bool, probable foreground
+        band_px : int, width of the probable-background band, pixels
+        region : (h, w) bool, optional, more "probably background" (the band goes around it)
+        """
+        img = self.images[c][t]
+        fgish = seed_sure | seed_probable
+        if not fgish.any():
+            return None
+        band = _dilate(fgish if region is None else (fgish | region), band_px)
+        rows = np.flatnonzero(band.any(axis=1))
+        cols = np.flatnonzero(band.any(axis=0))
+        h, w = fgish.shape
+        m = max(band_px, 4)
+        r0, r1 = max(rows[0] - m, 0), min(rows[-1] + m + 1, h)
+        c0, c1 = max(cols[0] - m, 0), min(cols[-1] + m + 1, w)
+        gc = np.full((r1 - r0, c1 - c0), cv2.GC_BGD, np.uint8)
+        gc[band[r0:r1, c0:c1]] = cv2.GC_PR_BGD
+        gc[seed_probable[r0:r1, c0:c1]] = cv2.GC_PR_FGD
+        gc[seed_sure[r0:r1, c0:c1]] = cv2.GC_FGD
+        bgish = (gc == cv2.GC_BGD) | (gc == cv2.GC_PR_BGD)
+        if bgish.sum() < 16 or (~bgish).sum() < 16:
+            return None
+        bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+        crop = np.ascontiguousarray(img[r0:r1, c0:c1])
+        full = gc.shape
+        area = full[0] * full[1]
+        cap = int(self.params.grabcut_max_pixels)
+        if cap > 0 and area > cap:  # bound the cost: GrabCut is linear in pixels
+            s = np.sqrt(cap / area)
+            size = (max(int(full[1] * s), 1), max(int(full[0] * s), 1))
+            crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
+            gc = cv2.resize(gc, size, interpolation=cv2.INTER_NEAREST)
+        try:
+            cv2.grabCut(crop, gc, None, bgd, fgd, int(self.params.grabcut_iterations),
+                        cv2.GC_INIT_WITH_MASK)
+        except cv2.error as e:  # degenerate colour models (e.g. a flat crop)
+            log.debug("grabCut failed on camera %d frame %d: %s", c, t, e)
+            return None
+        fg = ((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)).astype(np.uint8)
+        if fg.shape != full:
+            fg = cv2.resize(fg, (full[1], full[0]), interpolation=cv2.INTER_NEAREST)
+        out = np.zeros((h, w), bool)
+        out[r0:r1, c0:c1] = fg.astype(bool)
+        out |= seed_sure
+        return out
+
+    # ------------------------------------------------------------------------ one pass
+    def run_pass(self, exclude=None, cues=CUES):
+        """One pass of the chain (see the module docstring).
+
+        Parameters
+        ----------
+        exclude : list (C) of (T, h, w) bool or None, where the subject is
+        cues : iterable of str, subset of :data:`CUES`
+
+        Returns
+        -------
+        masks : list (C) of (T, h, w) bool
+        stages : dict (see :class:`ForegroundResult`)
+        backgrounds : list (C) of (h, w, 3) uint8; known : list (C) of (h, w) bool
+        """
+        cues = set(cues)
+        bad = cues - set(CUES)
+        if bad:
+            raise ValueError(f"cues must be a subset of {CUES}, got {sorted(bad)}")
+        p = self.params
+        C, T = len(self.cameras), self.T
+        bgs, knowns, cand, raw, shadow = [], [], [], [], []
+        for c in range(C):
+            ex = None if exclude is None else exclude[c]
+            bg, spread, known = self.background(c, ex)
+            bgs.append(bg)
+            knowns.append(known)
+            bgy = bgr_to_yuv(bg)
+            var = self.noise_var(c, bgy, spread, known)
+            cs, cr, sh = self.candidates(c, bg, var, "shadows" in cues)
+            cand.append(cs)
+            raw.append(cr)
+            shadow.append(sh)
+        stages = {"candidate": cand}
+        if "hull" not in cues and "grabcut" not in cues:
+            return [m.copy() for m in cand], stages, bgs, knowns
+        hullm = [np.zeros_like(m) for m in cand]
+        sils = [np.zeros_like(m) for m in cand]
+        depths = np.full((T, C), np.nan)
+        for t in range(T):
+            if "hull" in cues:
+                strong = [cand[c][t] for c in range(C)] if "shadows" in cues else None
+                sil, depths[t] = self.hull([raw[c][t] for c in range(C)], strong)
+                for c in range(C):
+                    sils[c][t] = sil[c]
+                    # the hull is carved from shadow-free candidates; a pixel the shadow test
+                    # took (dark clothes on a lighter wall of the same hue) comes back where
+                    # the other views put the body
+                    hullm[c][t] = raw[c][t] & _dilate(sil[c], p.hull_margin)
+            else:
+                for c in range(C):
+                    hullm[c][t] = cand[c][t]
+        stages["hull"], stages["hull_silhouette"] = hullm, sils
+        if "grabcut" not in cues:
+            return [m.copy() for m in hullm], stages, bgs, knowns
+        cv2.setRNGSeed(self._seed)
+        out = [np.zeros_like(m) for m in cand]
+        for c in range(C):
+            cam = self.cameras[c]
+            f = 0.5 * (cam.fx + cam.fy)
+            for t in range(T):
+                sure = _erode(hullm[c][t], 1)
+                seed = sils[c][t] | hullm[c][t]
+                # the hull's reprojection (voxel boxes) is blocky: it bounds the body, so it is
+                # "probably background" like the seed's convex hull (the body between its
+                # parts, e.g. a still torso between moving limbs), unless GrabCut's colours
+                # claim it; only the hull-consistent candidates are "probably foreground"
+                prob = hullm[c][t] & ~sure
+                region = _convex_fill(seed)
+                d = depths[t, c]
+                if not np.isfinite(d) or d <= 0:
+                    band = int(round(0.05 * max(cam.width, cam.height)))
+                else:
+                    band = int(round(p.body_margin * f / d))
+                g = self.grabcut(c, t, sure, prob, max(band, 2), region)
+                out[c][t] = hullm[c][t] if g is None else g
+        stages["grabcut"] = [m.copy() for m in out]
+        if "shadows" in cues:
+            for c in range(C):
+                out[c] &= ~(shadow[c] & ~sils[c])
+        h_min = [max(int(p.min_area * m.shape[1] * m.shape[2]), 1) for m in out]
+        for c in range(C):
+            for t in range(T):
+                m = clean_mask(out[c][t], p.morph_size, h_min[c])
+                if "hull" in cues and m.any():
+                    # keep only 2-D components that touch the hull's reprojection
+                    n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+                    touch = np.unique(lab[m & sils[c][t]])
+                    m = np.isin(lab, touch[touch > 0])
+                out[c][t] = m
+        return out, stages, bgs, knowns
+
+    def run(self, person_masks=None, cues=CUES, passes: int | None = None) -> ForegroundResult:
+        """All passes; see :func:`estimate_foreground` for the parameters."""
+        p = self.params
+        passes = int(p.passes if passes is None else passes)
+        given = [self._person_stack(c, person_masks) for c in range(len(self.cameras))]
+        given = [None if g is None else self._dilate_stack(g) for g in given]
+        exclude = given if any(g is not None for g in given) else None
+        for k in range(passes):
+            # GrabCut refines the last pass only: an earlier pass just has to say which region
+            # to leave out of the next background, which the hull-consistent masks do
+            use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
+            masks, stages, bgs, knowns = self.run_pass(exclude, use)
+            log.debug("foreground pass %d: fractions %s", k,
+                      [round(float(m.mean()), 4) for m in masks])
+            # the next background leaves out this pass's masks (dilated). Their convex hull
+            # would also take out a still torso between moving limbs, but leaves so much
+            # background unobserved (inpainted) that the masks overgrow into it (caliscope take)
+            exclude = [self._dilate_stack(m)
+                       | (False if g is None else g) for m, g in zip(masks, given)]
+        return ForegroundResult(masks, list(self.cameras), bgs, knowns, stages,
+                                list(self.full_size))
+
+    def _dilate_stack(self, stack):
+        return np.stack([_dilate(m, self.params.exclude_margin) for m in stack])
+
+
+def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=None,
+                        cues=CUES, params: ForegroundParams | None = None,
+                        passes: int | None = None) -> ForegroundResult:
+    """Foreground masks of a synchronised multi-camera sequence without empty-scene frames.
+
+    Parameters
+    ----------
+    frames_by_camera : sequence (C) of iterables of (H_c, W_c, 3) uint8 BGR images
+        T synchronised frames per camera (lists, arrays or generators; each frame is downscaled
+        to ``params.work_size`` as it arrives, so a full-resolution take never sits in memory).
+    cameras : sequence (C) of gltrack.camera.Camera
+        The calibrated cameras (world->camera, any world units and up axis); an image may be a
+        uniform scaling of its camera's size.
+    person_masks : sequence (C) of (T, H, W) bool (or None per camera), optional
+        Where the subject is known to be (e.g. the tracked model's projected silhouettes), at any
+        uniform scaling of the images; these pixels are left out of the background statistics.
+    rng : numpy.random.Generator, optional
+        Picks the background frames and seeds GrabCut; without it the frames are evenly spaced
+        and the seed is 0 (deterministic either way).
+    cues : iterable of str
+        Cues to use, a subset of ``("hull", "grabcut", "shadows")``; the temporal background is
+        always used. Leave cues out to measure what each contributes.
+    params : ForegroundParams, optional
+    passes : int, optional, overrides ``params.passes``
+
+    Returns
+    -------
+    ForegroundResult, masks at the working resolution (``result.mask_at`` resizes them)
+    """
+    est = SequenceForeground(frames_by_camera, cameras, params, rng)
+    return est.run(person_masks, cues, passes)
