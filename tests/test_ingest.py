@@ -70,7 +70,7 @@ def test_ingest_end_to_end(tmp_path, caplog, capsys):
     with caplog.at_level(logging.WARNING):
         rc = main(["-q", "ingest", "--calibration", str(calib), "--video",
                    *map(str, videos[::-1]), "--out", str(out), "--frames", "1:6",
-                   "--scale", "0.5"])
+                   "--scale", "0.5", "--masks", "none"])
     assert rc == 0, capsys.readouterr().err
     assert "cam_3.mp4: 192x112 but camera cam_03" in caplog.text  # padding: a warning
     ds = Dataset.open(out)
@@ -98,13 +98,63 @@ def test_ingest_end_to_end(tmp_path, caplog, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+
+def _ball_videos(folder, cams, n):
+    """Videos of a ball (0.25 m) moving over a fixed textured background; the drawn discs."""
+    rng = np.random.default_rng(3)
+    truth, paths = [], []
+    for k, cam in enumerate(cams):
+        W, H = cam.width, cam.height
+        bg = cv2.GaussianBlur(rng.uniform(40, 200, (H, W, 3)), (0, 0), 3).astype(np.uint8)
+        w = cv2.VideoWriter(str(folder / f"cam0{k + 1}.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                            10.0, (W, H))
+        discs = []
+        for i in range(n):
+            X = np.array([[0.5 * np.cos(0.5 * i), 0.5 * np.sin(0.5 * i), 0.9]])
+            (u, v), = cam.project(X)
+            r = 50.0 * 0.25 / cam.depth_of(X)[0] * W / 36.0  # 50 mm lens on a 36 mm sensor
+            img = bg.copy()
+            cv2.circle(img, (int(round(u)), int(round(v))), int(round(r)), (20, 230, 240), -1)
+            disc = np.zeros((H, W), np.uint8)
+            cv2.circle(disc, (int(round(u)), int(round(v))), int(round(r)), 1, -1)
+            discs.append(disc.astype(bool))
+            w.write(img)
+        w.release()
+        truth.append(discs)
+        paths.append(folder / f"cam0{k + 1}.mp4")
+    return paths, truth
+
+
+def test_ingest_estimates_foreground_masks(tmp_path, capsys):
+    cams = _rig([(120, 90)] * 4)
+    save_pose2sim_toml(tmp_path / "Calib.toml", cams)
+    videos, truth = _ball_videos(tmp_path, cams, 12)
+    out = tmp_path / "ds"
+    assert main(["-q", "ingest", "--calibration", str(tmp_path / "Calib.toml"), "--video",
+                 *map(str, videos), "--out", str(out)]) == 0
+    assert "foreground masks (sequence-foreground" in capsys.readouterr().out
+    ds = Dataset.open(out)
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["masks"]["method"] == "sequence-foreground" and meta["masks"]["passes"] == 2
+    assert len(meta["masks"]["foreground_fraction"]) == 4
+    assert not list(out.glob("*_background.png"))  # not an empty-scene frame: not written
+    ious = []
+    for k in range(4):
+        for j in range(ds.frames):
+            m = ds.mask(j, k)
+            assert m.shape == (90, 120)
+            t = truth[k][j]
+            ious.append((m & t).sum() / max((m | t).sum(), 1))
+    assert np.mean(ious) > 0.6, np.round(ious, 2)
+
+
 def test_default_scale_fps_and_order_matching(tmp_path, caplog):
     cams = _rig([(64, 48), (64, 48)], names=["left", "right"])
     calib = tmp_path / "calibration.json"
     save_calibration(calib, cams)
     videos = [_video(tmp_path / "a.mp4", 8), _video(tmp_path / "b.mp4", 8, start=3)]
     with caplog.at_level(logging.WARNING):
-        r = ingest(calib, videos, tmp_path / "ds", fps=5, progress=False)
+        r = ingest(calib, videos, tmp_path / "ds", fps=5, progress=False, masks="none")
     assert "matched by order" in caplog.text
     assert r["scale"] == 1.0 and r["fps"] == 5.0 and r["frames"] == 4  # 64 px: never upscaled
     ds = Dataset.open(tmp_path / "ds")
@@ -118,7 +168,7 @@ def test_frame_counts_differ_are_cut_with_a_warning(tmp_path, caplog):
     save_pose2sim_toml(calib, cams)
     videos = [_video(tmp_path / "cam01.mp4", 6), _video(tmp_path / "cam02.mp4", 4)]
     with caplog.at_level(logging.WARNING):
-        r = ingest(calib, videos, tmp_path / "ds", progress=False)
+        r = ingest(calib, videos, tmp_path / "ds", progress=False, masks="none")
     assert r["frames"] == 4 and "cut to the common 4 frames" in caplog.text
 
 
@@ -146,7 +196,7 @@ def test_caliscope_timestamps_synchronise(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         r = ingest(tmp_path / "camera_array.toml",
                    [tmp_path / "cam_1.mp4", tmp_path / "cam_0.mp4"], tmp_path / "ds",
-                   progress=False)
+                   progress=False, masks="none")
     assert "2 of 9 sync indices miss a camera" in caplog.text
     assert r["sync"].endswith("timestamps.csv") and r["frames"] == 7 and r["fps"] == 10
     ds = Dataset.open(tmp_path / "ds")
@@ -155,7 +205,7 @@ def test_caliscope_timestamps_synchronise(tmp_path, caplog):
     assert [_level(ds.colour(j, 1)) for j in range(7)] == [1, 2, 3, 4, 5, 6, 7]
     # --timestamps none: frame order instead
     r = ingest(tmp_path / "camera_array.toml", [tmp_path / "cam_0.mp4", tmp_path / "cam_1.mp4"],
-               tmp_path / "ds2", timestamps=False, progress=False)
+               tmp_path / "ds2", timestamps=False, progress=False, masks="none")
     assert r["sync"] == "frame order" and r["frames"] == 8
 
 
@@ -205,7 +255,7 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, capsys, case):
     calib, videos, message = _bad_case(tmp_path, case)
     out = tmp_path / "ds"
     rc = main(["-q", "ingest", "--calibration", str(calib), "--out", str(out), "--video",
-               *map(str, videos)])
+               *map(str, videos), "--masks", "none"])
     err = capsys.readouterr().err.strip()
     assert rc == 1
     assert "\n" not in err and err.startswith("gltrack ingest: error: ")
@@ -231,10 +281,12 @@ def test_a_failure_while_writing_leaves_nothing(tmp_path, monkeypatch):
 
     monkeypatch.setattr(mod, "_read_frames", failing)
     with pytest.raises(ValueError, match="cam02.mp4: cannot decode frame 2"):
-        ingest(tmp_path / "Calib.toml", videos, tmp_path / "ds", progress=False)
+        ingest(tmp_path / "Calib.toml", videos, tmp_path / "ds", progress=False,
+               masks="none")
     _no_leftovers(tmp_path / "ds")
     monkeypatch.setattr(mod, "_read_frames", real)  # the rerun works
-    assert ingest(tmp_path / "Calib.toml", videos, tmp_path / "ds", progress=False)["frames"] == 4
+    assert ingest(tmp_path / "Calib.toml", videos, tmp_path / "ds", progress=False,
+               masks="none")["frames"] == 4
 
 
 def test_existing_output_needs_overwrite(tmp_path, capsys):
@@ -325,7 +377,7 @@ def test_ingest_shared_pose2sim_take(shared, tmp_path):
         pytest.skip(f"{folder} absent")
     videos = [folder / f"cam0{i}.mp4" for i in (1, 2, 3, 4)]
     r = ingest(folder / "Calib.qca.txt", videos, tmp_path / "p2s", frames=(0, 3), scale=0.1,
-               progress=False)
+               progress=False, masks="none")
     assert r["up"] == "z" and r["calibration_format"] == "qualisys" and r["frames"] == 3
     ds = Dataset.open(tmp_path / "p2s")
     # cam01/cam02 are 1080 wide (encoder padding of the 1088-wide calibration)
@@ -344,7 +396,7 @@ def test_ingest_shared_caliscope_take_uses_its_timestamps(shared, tmp_path):
         pytest.skip(f"{folder} absent")
     videos = [folder / f"cam_{i}.mp4" for i in (3, 2, 1, 0)]  # matched by name, not order
     r = ingest(folder / "camera_array.toml", videos, tmp_path / "cal", frames=(0, 3), scale=0.1,
-               progress=False)
+               progress=False, masks="none")
     assert r["sync"].endswith("timestamps.csv") and r["fps"] == 6 and r["frames"] == 3
     assert r["cameras"] == ["cam0", "cam1", "cam2", "cam3"] and r["up"] == "z"
     meta = json.loads((tmp_path / "cal" / "meta.json").read_text())

@@ -39,6 +39,11 @@ def add_arguments(p):
                         "the calibration, if any; 'none' to ignore it)")
     p.add_argument("--max-gb", type=float, default=DEFAULT_MAX_GB,
                    help="refuse to write more PNG frames than this many GB")
+    p.add_argument("--masks", default="auto", choices=["auto", "none"],
+                   help="auto: estimate foreground masks from the sequence (no empty-scene "
+                        "frames needed; about a second per frame of 4 cameras) and write them as "
+                        "camN_mask/; none: frames only (the trackers then need masks or "
+                        "camN_background.png from elsewhere)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
 
@@ -71,7 +76,8 @@ def run(args):
     t0 = time.perf_counter()
     r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
                up=args.up, timestamps=timestamps, overwrite=args.overwrite,
-               progress=not getattr(args, "quiet", False), max_gb=args.max_gb)
+               progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
+               masks=args.masks)
     dt = time.perf_counter() - t0
     sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
     up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"
@@ -79,4 +85,12 @@ def run(args):
     print(f"wrote {r['path']} ({r['frames']} frames at {r['fps']:g} fps, {len(r['cameras'])} "
           f"cameras: {sizes}; scale {r['scale']:.4g}; calibration {r['calibration_format']}; "
           f"up {up}; sync {r['sync']}; {r['bytes'] / 1e6:.1f} MB in {dt:.1f} s)")
+    m = r["masks"]
+    if m is not None:
+        fr = ", ".join(f"{n} {f:.3f}" for n, f in zip(r["cameras"], m["foreground_fraction"]))
+        print(f"foreground masks ({m['method']}, {m['passes']} passes, {m['seconds']:.0f} s): "
+              f"fraction of the image per camera {fr}")
+    else:
+        print("no foreground masks (--masks none): give the dataset camN_mask/ or "
+              "camN_background.png before tracking it")
     return 0

@@ -43,6 +43,17 @@ What :func:`ingest` does, in order, failing before anything is written on bad in
    extracting gigabytes by accident.
    ``meta.json``'s ``"source"`` records the calibration, its format, each camera's video, its
    size and the video frame of every dataset frame, the scale and the synchronisation used.
+9. **Foreground masks** (``masks="auto"``, the default; :func:`write_masks`): real footage has
+   no empty-scene frames, so the multi-view trackers (which read ``camN_mask/`` when every
+   camera has it, else subtract ``camN_background.png``) need masks estimated from the sequence
+   itself: :func:`gltrack.observe.foreground.estimate_foreground` runs over the written frames
+   (at its own working resolution) and the masks are written at the dataset's image size as
+   ``camN_mask/%06d.png`` (255 = foreground), inside the same temporary folder, so a failure
+   leaves nothing behind. ``meta.json``'s ``"masks"`` records what made them. The estimated
+   temporal background is *not* written as ``camN_background.png``: that file means an
+   empty-scene frame, and this one holds the subject's "ghost" wherever they stood still (and
+   inpainting where nothing was observed); a tracker or ``--foreground background`` that used
+   it would subtract the ghost. ``masks="none"`` writes frames only.
 """
 from __future__ import annotations
 
@@ -72,6 +83,8 @@ DEFAULT_LONG_SIDE = 640
 #: Refuse to write more PNG than this (estimated from the first frame) unless raised.
 DEFAULT_MAX_GB = 2.0
 TIMESTAMPS = "timestamps.csv"
+#: Values of ``ingest(masks=...)``.
+MASKS = ("auto", "none")
 _NAME_OK = re.compile(r"^[A-Za-z0-9_.-]+$")
 
 
@@ -423,7 +436,8 @@ def _folder_name(name, i, used):
 # the command
 # --------------------------------------------------------------------------------------------
 def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="auto",
-           timestamps=None, overwrite=False, progress=True, max_gb=DEFAULT_MAX_GB):
+           timestamps=None, overwrite=False, progress=True, max_gb=DEFAULT_MAX_GB,
+           masks="auto"):
     """Make a multi-view gltrack dataset from calibrated videos (see the module docstring).
 
     Parameters
@@ -450,18 +464,24 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         tqdm bar (only on a terminal).
     max_gb : float
         Refuse when the PNG frames would take more than this (estimated from the first frame).
+    masks : {"auto", "none"}
+        ``"auto"``: estimate foreground masks from the sequence and write them (module
+        docstring, step 9); ``"none"``: frames only.
 
     Returns
     -------
     dict
         Summary: ``path``, ``frames``, ``fps``, ``cameras`` (names), ``sizes`` ([w, h] each),
-        ``scale``, ``up``, ``up_angle_deg`` (auto only), ``sync``, ``bytes`` written.
+        ``scale``, ``up``, ``up_angle_deg`` (auto only), ``sync``, ``bytes`` written,
+        ``masks`` (``meta.json``'s ``"masks"``, or None).
 
     Raises
     ------
     FileNotFoundError, ValueError
         One line naming the file at fault; nothing is left at ``out``.
     """
+    if masks not in MASKS:
+        raise ValueError(f"masks must be one of {MASKS}, got {masks!r}")
     calibration = Path(calibration)
     out = Path(out)
     fmt = detect_format(calibration)
@@ -541,12 +561,73 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
             for j, img in enumerate(_read_frames(info.path, fmap[:, k])):
                 writer.write_colour(j, k, _resize(img, sizes[k]))
                 bar.update(1)
-    bar.close()
+        bar.close()
+        mask_meta = None
+        if masks == "auto":
+            mask_meta = write_masks(writer, len(fmap))
+            writer.extra_meta["masks"] = mask_meta
     written = sum(p.stat().st_size for p in out.rglob("*.png"))
     return {"path": out, "frames": len(fmap), "fps": out_fps,
             "cameras": [c.name for c in internal], "sizes": [list(s) for s in sizes],
             "scale": scale, "up": up, "up_angle_deg": up_angle, "sync": sync,
-            "calibration_format": fmt, "bytes": written}
+            "calibration_format": fmt, "bytes": written, "masks": mask_meta}
+
+
+def write_masks(writer, frames, params=None):
+    """Estimate the foreground of the frames a :class:`DatasetWriter` holds and write them.
+
+    The colour frames already written (in the writer's temporary folder) are read back one at a
+    time and handed to :func:`~gltrack.observe.foreground.estimate_foreground`, which downsizes
+    each as it arrives; its masks (working resolution) are resized to each camera's image size
+    (bilinear, then thresholded at one half: smoother edges than nearest-neighbour blocks) and
+    written with :meth:`DatasetWriter.write_mask`.
+
+    Parameters
+    ----------
+    writer : DatasetWriter, open, with colour frames ``0 .. frames-1`` for every camera
+    frames : int
+    params : gltrack.observe.foreground.ForegroundParams, optional
+
+    Returns
+    -------
+    dict
+        What ``meta.json`` records as ``"masks"``: ``method``, ``cues``, ``passes``,
+        ``work_size``, ``seconds``, ``foreground_fraction`` (per camera).
+    """
+    import time
+
+    from gltrack.observe.foreground import CUES, ForegroundParams, estimate_foreground
+
+    params = params or ForegroundParams()
+    cams = writer.cameras
+
+    def feed(cam):
+        for j in range(frames):
+            path = writer.tmp / cam.name / f"{j:06d}.png"
+            img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            if img is None:
+                raise OSError(f"{path}: cannot read back the frame just written")
+            yield img
+
+    log.info("foreground: estimating masks of %d frames x %d cameras (work size %d px, %d "
+             "passes, cues %s)", frames, len(cams), params.work_size, params.passes,
+             ", ".join(CUES))
+    t0 = time.perf_counter()
+    res = estimate_foreground([feed(c) for c in cams], cams, params=params)
+    for k, cam in enumerate(cams):
+        for j in range(frames):
+            m = res.masks[k][j]
+            if m.shape != (cam.height, cam.width):
+                m = cv2.resize(m.astype(np.float32), (cam.width, cam.height),
+                               interpolation=cv2.INTER_LINEAR) >= 0.5
+            writer.write_mask(j, k, m)
+    seconds = time.perf_counter() - t0
+    frac = [round(float(f), 4) for f in res.foreground_fraction()]
+    log.info("foreground: masks written in %.0f s; foreground fraction per camera %s", seconds,
+             ", ".join(f"{c.name} {f:.3f}" for c, f in zip(cams, frac)))
+    return {"method": "sequence-foreground", "cues": list(CUES), "passes": int(params.passes),
+            "work_size": int(params.work_size), "seconds": round(seconds, 1),
+            "foreground_fraction": frac}
 
 
 def _resize(img, size):
