@@ -29,7 +29,7 @@ from pathlib import Path
 
 TAKE = "video/pose2sim_balancing_4cam"
 INGEST_FRAMES = "0:30"  # the temporal background needs frames in which the subject moves
-TRACK_FRAMES = "0:10"
+TRACK_FRAMES = "0:5"
 
 
 def shared_take():

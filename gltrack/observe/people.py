@@ -26,7 +26,8 @@ LINK = 0.12
 PERSON_HEIGHT = 0.5
 #: ... and holds at least this share of the largest blob's weight
 PERSON_SHARE = 0.3
-#: more points than this are thinned to every k-th (a 176x144 depth frame has up to 25,000)
+#: more points than this are thinned to every k-th to find the blobs (a 176x144 depth frame has
+#: up to 25,000); every point then joins its nearest kept point's blob
 MAX_POINTS = 5000
 
 
@@ -39,7 +40,7 @@ class Blob:
     centroid : (3,) float, weighted mean of the points, metres
     weight : float, summed weights (voxel volumes, m^3; or pixel areas)
     lo, hi : (3,) float, bounding box, metres
-    index : (K,) int, rows of the (thinned, see :data:`MAX_POINTS`) points in the blob
+    index : (K,) int, rows of the points in the blob
     """
 
     centroid: np.ndarray
@@ -65,6 +66,7 @@ def person_blobs(points, weights=None, link: float = LINK) -> list[Blob]:
     -------
     list of Blob
     """
+    from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
@@ -72,15 +74,16 @@ def person_blobs(points, weights=None, link: float = LINK) -> list[Blob]:
     w = np.ones(len(pts)) if weights is None else np.asarray(weights, dtype=np.float64)
     if len(pts) == 0:
         return []
-    if len(pts) > MAX_POINTS:  # every k-th point: the pairs grow with the density squared
-        keep = np.arange(0, len(pts), int(np.ceil(len(pts) / MAX_POINTS)))
-        pts, w = pts[keep], w[keep]
-    pairs = cKDTree(pts).query_pairs(float(link), output_type="ndarray")
-    from scipy.sparse import coo_matrix
-
+    # the blobs are found on every k-th point (the pairs grow with the density squared); every
+    # point then joins the blob of its nearest kept point, so a lone person's centroid is the
+    # weighted mean of all its points
+    keep = np.arange(0, len(pts), max(int(np.ceil(len(pts) / MAX_POINTS)), 1))
+    tree = cKDTree(pts[keep])
+    pairs = tree.query_pairs(float(link), output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
-                       shape=(len(pts), len(pts)))
-    n, labels = connected_components(graph, directed=False)
+                       shape=(len(keep), len(keep)))
+    n, kept_labels = connected_components(graph, directed=False)
+    labels = kept_labels if len(keep) == len(pts) else kept_labels[tree.query(pts)[1]]
     blobs = []
     for k in range(n):
         idx = np.nonzero(labels == k)[0]

@@ -314,16 +314,25 @@ def silhouette_cost(model_mask: np.ndarray, fg_mask: np.ndarray,
     -------
     float, ``count((model XOR fg) AND NOT block)``
     """
+    m, f, keep = _masks(model_mask, fg_mask, block_mask)
+    return float(np.count_nonzero((m ^ f) & keep))
+
+
+def _masks(model_mask, fg_mask=None, block_mask=None):
+    """(model, foreground, unblocked) as (H, W) bool arrays of one shape (foreground None when
+    not given); a depth image covers where ``> 0``."""
     m = np.asarray(model_mask)
     m = m if m.dtype == bool else m > 0
-    f = np.asarray(fg_mask).astype(bool)
-    _same_shape("model_mask", m, "fg_mask", f)
-    x = m ^ f
+    f = None
+    if fg_mask is not None:
+        f = np.asarray(fg_mask).astype(bool)
+        _same_shape("model_mask", m, "fg_mask", f)
+    keep = np.ones_like(m)
     if block_mask is not None:
         b = np.asarray(block_mask).astype(bool)
         _same_shape("model_mask", m, "block_mask", b)
-        x &= ~b
-    return float(np.count_nonzero(x))
+        keep = ~b
+    return m, f, keep
 
 
 def model_area(model_mask: np.ndarray, block_mask: np.ndarray | None = None) -> float:
@@ -338,13 +347,8 @@ def model_area(model_mask: np.ndarray, block_mask: np.ndarray | None = None) -> 
     -------
     float, ``count(model AND NOT block)``
     """
-    m = np.asarray(model_mask)
-    m = m if m.dtype == bool else m > 0
-    if block_mask is not None:
-        b = np.asarray(block_mask).astype(bool)
-        _same_shape("model_mask", m, "block_mask", b)
-        m = m & ~b
-    return float(np.count_nonzero(m))
+    m, _, keep = _masks(model_mask, None, block_mask)
+    return float(np.count_nonzero(m & keep))
 
 
 def silhouette_iou(model_mask: np.ndarray, fg_mask: np.ndarray,
@@ -361,11 +365,7 @@ def silhouette_iou(model_mask: np.ndarray, fg_mask: np.ndarray,
     -------
     float in 0..1, ``count(M & F & ~B) / count((M | F) & ~B)``; 1 when the union is empty
     """
-    m = np.asarray(model_mask)
-    m = m if m.dtype == bool else m > 0
-    f = np.asarray(fg_mask).astype(bool)
-    _same_shape("model_mask", m, "fg_mask", f)
-    keep = np.ones_like(m) if block_mask is None else ~np.asarray(block_mask).astype(bool)
+    m, f, keep = _masks(model_mask, fg_mask, block_mask)
     union = np.count_nonzero((m | f) & keep)
     return float(np.count_nonzero(m & f & keep)) / union if union else 1.0
 

@@ -373,10 +373,8 @@ class HillClimbDepthTracker(Tracker):
         if len(pts) < 50:
             raise NoPersonError(f"frame {frame}: too few foreground depth pixels ({len(pts)}) to "
                                 "initialise: no person in front of the camera?")
-        # the largest connected surface (pixels weighted by their area, ~ depth^2): a second
-        # person is not averaged in
-        zc = self.obs.pinhole.depth_of(pts)
-        c = pick_person(pts, zc * zc, where=f"frame {frame}").centroid
+        # the largest connected surface: a second person is not averaged in
+        c = pick_person(pts, where=f"frame {frame}").centroid
         ray = c - self.obs.pinhole.center
         c = c + o.init_depth_offset * ray / np.linalg.norm(ray)
         _, library = canonical_poses(d, self.body.skeleton)
