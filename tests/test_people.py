@@ -33,6 +33,7 @@ def test_small_clutter_is_no_second_person(caplog):
     with caplog.at_level(logging.WARNING, logger="gltrack.observe.people"):
         best = pick_person(pts)
     assert "person-sized" not in caplog.text and best.height() > 1.6
+    np.testing.assert_array_equal(best.centroid, pts.mean(axis=0))  # clutter is not left out
     assert pick_person(np.zeros((0, 3))) is None
 
 

@@ -4,8 +4,8 @@ The automatic starts place their pose library on "the person's centroid": the vi
 voxels (multi-view) or the seen depth surface (depth). With a second person, or a person-sized
 object, in the scene, the centroid of all foreground lies between the two, where nobody is.
 :func:`person_blobs` splits the points into connected blobs (points closer than ``link``
-metres are connected); :func:`pick_person` takes the largest and warns when another blob is
-person-sized too.
+metres are connected); :func:`pick_person` leaves out the blobs that are person-sized besides
+the largest (with a warning naming them) and keeps everything else.
 """
 from __future__ import annotations
 
@@ -88,25 +88,36 @@ def person_blobs(points, weights=None, link: float = LINK) -> list[Blob]:
     for k in range(n):
         idx = np.nonzero(labels == k)[0]
         wk = w[idx]
-        blobs.append(Blob((pts[idx] * wk[:, None]).sum(0) / max(wk.sum(), 1e-12),
-                          float(wk.sum()), pts[idx].min(0), pts[idx].max(0), idx))
+        c = (pts[idx].mean(axis=0) if weights is None  # (bit for bit the plain mean)
+             else (pts[idx] * wk[:, None]).sum(0) / max(wk.sum(), 1e-12))
+        blobs.append(Blob(c, float(wk.sum()), pts[idx].min(0), pts[idx].max(0), idx))
     return sorted(blobs, key=lambda b: -b.weight)
 
 
 def pick_person(points, weights=None, *, where: str = "", link: float = LINK) -> Blob | None:
-    """The largest blob of ``points``; a warning names the others that are person-sized.
+    """The person's points: all of ``points`` except the blobs that are person-sized besides
+    the largest one (named in a warning). Small blobs stay: a far arm seen through a gap or a
+    foot beyond a depth edge is a separate blob of the same person.
 
-    Returns None when there are no points.
+    Returns a Blob of the kept points (its centroid bit for bit the plain mean of ``points``
+    when nothing is left out), or None when there are no points.
     """
-    blobs = person_blobs(points, weights, link)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    blobs = person_blobs(pts, weights, link)
     if not blobs:
         return None
     best = blobs[0]
     others = [b for b in blobs[1:] if b.weight >= PERSON_SHARE * best.weight
               and b.height() >= PERSON_HEIGHT]
-    if others and best.height() >= PERSON_HEIGHT:
+    if not others or best.height() < PERSON_HEIGHT:
+        idx = np.arange(len(pts))
+    else:
         log.warning("%s%d person-sized blobs in view; starting from the largest at %s "
                     "(others at %s)", f"{where}: " if where else "", 1 + len(others),
                     np.round(best.centroid, 2).tolist(),
                     ", ".join(str(np.round(b.centroid, 2).tolist()) for b in others))
-    return best
+        idx = np.setdiff1d(np.arange(len(pts)), np.concatenate([b.index for b in others]))
+    w = np.ones(len(pts)) if weights is None else np.asarray(weights, dtype=np.float64)
+    c = (pts[idx].mean(axis=0) if weights is None
+         else (pts[idx] * w[idx, None]).sum(0) / max(w[idx].sum(), 1e-12))
+    return Blob(c, float(w[idx].sum()), pts[idx].min(0), pts[idx].max(0), idx)
