@@ -221,6 +221,33 @@ def test_decision_keeps_the_hypothesis_that_explains_the_frames():
     assert [e.score for e, _ in runs[1]] == [5.5, 3.0, 4.0]
 
 
+def test_a_tie_between_twins_goes_to_the_one_walking_forwards():
+    """Two hypotheses whose mean scores differ by less than the tie margin: the one whose
+    travel points the way it faces is kept even with the (slightly) higher score; a clear
+    score difference, or a body that does not travel, is decided by the scores alone."""
+    from gltrack.body.model import BodyModel
+    from gltrack.track.base import FrameEstimate
+    from gltrack.track.runner import _decide
+
+    body = BodyModel.build()
+    yaw = body.dofs.index("pelvis_ry")
+
+    class Walker:  # scripted poses and scores; no GL involved
+        def __init__(self, heading, speed, score):
+            self.body, self.heading, self.speed, self.score = body, heading, speed, score
+
+        def step(self, f):
+            p = np.zeros(body.dofs.size)
+            p[1], p[2], p[yaw] = 0.98, self.speed * f, self.heading  # travels along +Z
+            return FrameEstimate(p, self.score, 1)
+
+    facing_away = Walker(np.pi, 0.08, 100.0)  # walks backwards, scores lowest
+    facing_on = Walker(0.0, 0.08, 100.5)      # faces +Z, the way it travels
+    assert _decide([facing_away, facing_on], range(10), [])[0] == 1
+    assert _decide([Walker(np.pi, 0.08, 100.0), Walker(0.0, 0.08, 105.0)], range(10), [])[0] == 0
+    assert _decide([Walker(np.pi, 0.0, 100.0), Walker(0.0, 0.0, 100.5)], range(10), [])[0] == 0
+
+
 def test_a_lost_track_is_restarted(tmp_path, caplog):
     """The whole state turned 90 degrees at frame 2 (the tracker lost the body): the frames'
     quality rises over the tracker's lost threshold, the runner re-starts it from its automatic

@@ -97,12 +97,59 @@ def _step(tracker, f: int, hooks):
     return est, time.perf_counter() - t0
 
 
+#: Mean scores within this fraction of the best are a tie: the evidence does not tell the
+#: hypotheses apart (a body seen face-on by one depth camera and its turned-round twin differed
+#: by 0.4 % on the demo walk, the wrong one lower), and the direction of travel decides.
+TIE = 0.02
+#: Root travel (m) over the decision frames that counts as walking rather than swaying.
+WALKED_M = 0.15
+
+
+def _walking_direction(body, run) -> float | None:
+    """Cosine between the body's mean facing direction and its horizontal travel over ``run``
+    (a list of (estimate, seconds)); None when the root moved less than :data:`WALKED_M` or
+    the skeleton has no hips to face by.
+
+    Facing is the horizontal normal of the hip line (``l_hip - r_hip``) crossed with the
+    internal frame's up axis (+Y): at heading 0 the model faces +Z with its left hip at +X.
+    """
+    names = list(body.skeleton.names)
+    if "l_hip" not in names or "r_hip" not in names:
+        return None
+    P = np.stack([e.params for e, _ in run])
+    travel = P[-1, :3] - P[0, :3]
+    travel[1] = 0.0
+    if np.linalg.norm(travel) < WALKED_M:
+        return None
+    J = body.joints(P)
+    facing = np.cross(J[:, names.index("l_hip")] - J[:, names.index("r_hip")], [0.0, 1.0, 0.0]).mean(0)
+    facing[1] = 0.0
+    return float(facing @ travel / (np.linalg.norm(facing) * np.linalg.norm(travel) + 1e-12))
+
+
 def _decide(trackers, frames, hooks):
     """Track ``frames`` with each started tracker; the index of the one whose mean score (lower
-    = better) is lowest, and every tracker's (estimate, seconds) per frame."""
+    = better) is lowest, and every tracker's (estimate, seconds) per frame.
+
+    A tie (means within :data:`TIE` of the best) between a hypothesis that walks forwards and
+    one that walks backwards (:func:`_walking_direction`, cosines beyond +-0.5) goes to the one
+    walking forwards: people walk forwards far more often than backwards, and on a tie that
+    prior is the only evidence left. A body that stands, sways or steps sideways is decided by
+    the scores alone.
+    """
     runs = [[_step(tr, f, hooks) for f in frames] for tr in trackers]
     means = [float(np.nanmean([e.score for e, _ in run])) for run in runs]
     k = int(np.argmin(means))
+    body = getattr(trackers[k], "body", None)
+    if body is not None and len(runs[0]) > 1:
+        tied = [j for j, m in enumerate(means) if m - means[k] <= TIE * abs(means[k])]
+        cos = {j: _walking_direction(body, runs[j]) for j in tied}
+        forwards = [j for j in tied if cos[j] is not None and cos[j] > 0.5]
+        if cos[k] is not None and cos[k] < -0.5 and forwards:
+            j = min(forwards, key=lambda i: means[i])
+            log.info("start hypotheses %d and %d score within %.0f %%; %d walks forwards and is "
+                     "kept", k, j, 100 * TIE, j)
+            k = j
     log.info("start hypotheses tracked over %d frames: mean scores %s; kept %d",
              len(runs[0]), ", ".join(f"{m:.4g}" for m in means), k)
     return k, runs
