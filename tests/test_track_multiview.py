@@ -353,3 +353,34 @@ def test_auto_init_without_a_person_names_the_frame(tmp_path, ctx):
             tr.auto_init(0)
     finally:
         tr.close()
+
+
+def test_a_track_that_explained_the_person_away_is_not_a_good_fit(dataset, ctx):
+    """A colour model learnt off the person (the background's colours) makes the environment
+    layers remove the person's foreground; with the body then out of every view the XOR is
+    zero. The frame's quality must still say lost (at least the share of foreground removed)
+    and the IoU of a camera with neither model nor foreground is missing, not perfect."""
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = dataset
+    tr = HPSTracker(Dataset.open(path), body, ctx, HpsOptions(particles=12, layers=1, iou_tile=128),
+                    np.random.default_rng(0))
+    try:
+        tr.start(0, P[0])
+        good = tr.step(1).info
+        assert good["foreground_kept"] > 0.9
+        images, masks = tr.obs(1)
+        beside = P[1].copy()
+        beside[0] += 1.5
+        tr.likelihood.init_appearance(beside, images, masks)  # learns the background's colours
+        gone = P[1].copy()
+        gone[0] += 50.0  # out of every camera
+        tr.particles[:] = gone
+        info = tr.step(2).info
+        assert info["foreground_kept"] < 0.05 and info["e_s"] < 0.05 * good["e_s"] + 1, info
+        assert info["quality"] >= 0.95 > tr.lost_quality
+        assert any(v is None for v in info["iou"]), info["iou"]
+        assert all(v is None or 0.0 <= v <= 1.0 for v in info["iou"])
+    finally:
+        tr.close()

@@ -120,6 +120,8 @@ class SilhouetteLikelihood:
     area : float, unblocked foreground pixels of the current frame at tile resolution, summed
         over the cameras (at least 1): the scale of ``e_S``
     areas : (C,) float, the same per camera (may be 0)
+    raw_area : float, the frame's foreground pixels at tile resolution before the environment
+        layers removed anything (occluder polygons only), summed over the cameras
     """
 
     def __init__(self, ctx, body, observation: MultiviewObservation, *, tile: int = 64,
@@ -136,6 +138,7 @@ class SilhouetteLikelihood:
         self.appearance = None
         self.area = 1.0
         self.areas = np.zeros(len(observation.pinholes))
+        self.raw_area = 0.0
         self.frame = None
         self._fgs = self._blocks = None
         self._iou_eng, self._iou_frame, self._iou_areas = None, None, None
@@ -175,9 +178,10 @@ class SilhouetteLikelihood:
         block : list of (H, W) bool, pixels the costs ignore
         """
         images, masks = self.obs(frame)
-        fgs, blocks = [], []
+        fgs, blocks, raws = [], [], []
         lut = self._human_lut() if self.env is not None else None
         for c, (img, fg) in enumerate(zip(images, masks)):
+            raws.append(fg & ~self.obs.polygons[c])
             if self.env is not None:
                 fg, block = self.env.apply(c, fg, img, self.obs.polygons[c], lut)
             elif self.blocking == "polygons":
@@ -190,11 +194,13 @@ class SilhouetteLikelihood:
             fgs.append(fg)
             blocks.append(block)
         T = self.engine.tile
-        self.areas = np.array([
-            np.count_nonzero(cv2.resize((f & ~b).astype(np.uint8), (T, T),
-                                        interpolation=cv2.INTER_NEAREST_EXACT))
-            for f, b in zip(fgs, blocks)], dtype=np.float64)
+
+        def count(m):
+            return np.count_nonzero(cv2.resize(m.astype(np.uint8), (T, T),
+                                               interpolation=cv2.INTER_NEAREST_EXACT))
+        self.areas = np.array([count(f & ~b) for f, b in zip(fgs, blocks)], dtype=np.float64)
         self.area = max(1.0, float(self.areas.sum()))
+        self.raw_area = float(sum(count(r) for r in raws))
         self.frame = frame
         self._fgs, self._blocks = fgs, blocks
         self._iou_frame = None  # a re-read frame (same number, other masks) is uploaded again
@@ -253,6 +259,12 @@ class SilhouetteLikelihood:
                                           tile=tile, programs=self.engine.programs)
             self._iou_frame = None
         return self._iou_eng
+
+    @property
+    def kept_fraction(self) -> float:
+        """Share of the frame's foreground (occluder polygons aside) that the environment
+        layers left to be scored (1.0 with nothing observed or nothing removed)."""
+        return min(1.0, self.area / self.raw_area) if self.raw_area > 0 else 1.0
 
     def release(self) -> None:
         if self._iou_eng is not None:

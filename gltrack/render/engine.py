@@ -635,15 +635,16 @@ def silhouette_iou(model_px, foreground_px, xor_px):
 
     Returns
     -------
-    array of float64 in 0..1, the shape of the broadcast inputs; 1 where both model and
-    foreground are empty (nothing to disagree on)
+    array of float64 in 0..1, the shape of the broadcast inputs; NaN where both model and
+    foreground are empty: there is nothing to compare, and a camera that sees neither the
+    person nor the model is no evidence of a good fit
     """
     m, f, x = (np.asarray(a, dtype=np.float64) for a in (model_px, foreground_px, xor_px))
     union = m + f + x
     inter = np.clip(m + f - x, 0.0, None)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(union > 0, np.clip(inter / np.where(union > 0, union, 1.0), 0.0, 1.0),
-                        1.0)
+                        np.nan)
 
 
 def choose_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str:

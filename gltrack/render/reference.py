@@ -363,11 +363,12 @@ def silhouette_iou(model_mask: np.ndarray, fg_mask: np.ndarray,
 
     Returns
     -------
-    float in 0..1, ``count(M & F & ~B) / count((M | F) & ~B)``; 1 when the union is empty
+    float in 0..1, ``count(M & F & ~B) / count((M | F) & ~B)``; NaN when the union is empty
+    (nothing to compare)
     """
     m, f, keep = _masks(model_mask, fg_mask, block_mask)
     union = np.count_nonzero((m | f) & keep)
-    return float(np.count_nonzero(m & f & keep)) / union if union else 1.0
+    return float(np.count_nonzero(m & f & keep)) / union if union else float("nan")
 
 
 def appearance_score(tri: np.ndarray, obs_bits: np.ndarray, tri_bits: np.ndarray,

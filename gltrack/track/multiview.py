@@ -58,8 +58,10 @@ Score of a frame: the summed silhouette XOR count of the estimate (one extra eva
 (it does not steer the filter), gives ``info["iou"]``: the per-camera silhouette IoU of the
 estimate against the frame's foreground over the unblocked pixels, counted at ``iou_tile``
 pixels (:meth:`SilhouetteLikelihood.silhouette_iou`, channel ``model``), a quality figure that
-needs no ground truth (``gltrack eval`` summarises it). ``info["quality"]`` (XOR over
-foreground pixels at the tracking tile) is what the runner's loss detection reads.
+needs no ground truth (``gltrack eval`` summarises it; None for a camera where neither model
+nor foreground has a pixel). ``info["quality"]`` (XOR over foreground pixels at the tracking
+tile, at least the share of the foreground the environment layers removed when that is over
+half: ``info["foreground_kept"]``) is what the runner's loss detection reads.
 """
 from __future__ import annotations
 
@@ -313,6 +315,11 @@ class MultiviewTracker(Tracker):
     #: set was turned 90 degrees. Real masks are worse than simulated ones (a mask IoU of 0.8
     #: alone gives about 0.25), hence the margin.
     lost_quality = 0.45
+    #: below this share of the foreground left by the environment layers
+    #: (:attr:`SilhouetteLikelihood.kept_fraction`) a frame's quality is at least the share
+    #: removed: the layers take out other people and clutter (a second person in the
+    #: background of two of four views is well under half the foreground), not the subject.
+    min_kept = 0.5
 
     @property
     def area(self) -> float:
@@ -446,9 +453,16 @@ class MultiviewTracker(Tracker):
         k = self.opt.appearance_refine
         if self.appearance is not None and k and self.frames_done % k == 0:
             self.likelihood.refine_appearance(x, images, fgs)
-        info = {"e_s": e_s, "foreground_px": self.area,
-                "quality": e_s / max(self.area, 1.0),
-                "iou": [round(float(v), 4) for v in iou],
+        kept = self.likelihood.kept_fraction
+        quality = e_s / max(self.area, 1.0)
+        if kept < self.min_kept:
+            # the colour model removed most of what the cameras see: the fit is to a mask the
+            # tracker made itself (after a bad start it learnt the background's colours and
+            # then explained the person away: e_S near 0 with the model off the person)
+            quality = max(quality, 1.0 - kept)
+        info = {"e_s": e_s, "foreground_px": self.area, "foreground_kept": round(kept, 4),
+                "quality": quality,
+                "iou": [None if not np.isfinite(v) else round(float(v), 4) for v in iou],
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if c_a is not None:
             info["c_a"] = c_a

@@ -128,8 +128,9 @@ def _walking_direction(body, run) -> float | None:
 
 
 def _decide(trackers, frames, hooks):
-    """Track ``frames`` with each started tracker; the index of the one whose mean score (lower
-    = better) is lowest, and every tracker's (estimate, seconds) per frame.
+    """Track ``frames`` with each started tracker; the index of the one whose mean quality
+    (``info["quality"]`` when every frame has one, else the score; lower = better) is lowest,
+    and every tracker's (estimate, seconds) per frame.
 
     A tie (means within :data:`TIE` of the best) between a hypothesis that walks forwards and
     one that walks backwards (:func:`_walking_direction`, cosines beyond +-0.5) goes to the one
@@ -138,7 +139,13 @@ def _decide(trackers, frames, hooks):
     the scores alone.
     """
     runs = [[_step(tr, f, hooks) for f in frames] for tr in trackers]
-    means = [float(np.nanmean([e.score for e, _ in run])) for run in runs]
+    # the frames' quality where every frame has one: the score is measured against what each
+    # tracker itself observes (a multi-view tracker's colour model decides which foreground it
+    # scores), the quality also counts what that observation left out
+    quality = all(isinstance((e.info or {}).get("quality"), (int, float)) for run in runs
+                  for e, _ in run)
+    means = [float(np.nanmean([e.info["quality"] if quality else e.score for e, _ in run]))
+             for run in runs]
     k = int(np.argmin(means))
     body = getattr(trackers[k], "body", None)
     if body is not None and len(runs[0]) > 1:
@@ -150,8 +157,9 @@ def _decide(trackers, frames, hooks):
             log.info("start hypotheses %d and %d score within %.0f %%; %d walks forwards and is "
                      "kept", k, j, 100 * TIE, j)
             k = j
-    log.info("start hypotheses tracked over %d frames: mean scores %s; kept %d",
-             len(runs[0]), ", ".join(f"{m:.4g}" for m in means), k)
+    log.info("start hypotheses tracked over %d frames: mean %s %s; kept %d",
+             len(runs[0]), "quality" if quality else "scores",
+             ", ".join(f"{m:.4g}" for m in means), k)
     return k, runs
 
 
