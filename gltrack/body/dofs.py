@@ -11,6 +11,9 @@ Presets (counts are this implementation's, with the papers' intent in brackets):
   hips 2x3, knees 2x1, ankles 2x2.
 * ``"38"`` (37 DOF) [Bandouch's 38-DOF experiments]: ``full`` without lower spine, hands
   (wrists) and feet (ankles).
+* ``"upper"`` (36 DOF): ``full`` without hips, knees and ankles; the legs stay in the rest
+  pose and are left out of the surface (:data:`HIDDEN_PARTS`): for a subject seen from the
+  waist up.
 * ``"25"`` (25 DOF) [Caillette: 14 segments, at most 2 DOF per joint]: root 6, lower spine 1,
   upper spine 2, head 2, shoulders 2x2, elbows 2x1, hips 2x2, knees 2x1, ankles 2x1.
 
@@ -70,7 +73,15 @@ PRESETS = {
            "l_shoulder": "yz", "r_shoulder": "yz", "l_elbow": "y", "r_elbow": "y",
            "l_hip": "xz", "r_hip": "xz", "l_knee": "x", "r_knee": "x",
            "l_ankle": "x", "r_ankle": "x"},
+    "upper": {k: v for k, v in _FULL.items()
+              if k not in ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle")},
 }
+
+#: Mesh parts (:data:`gltrack.body.mesh.PARTS`) a preset leaves out of the body's surface, so
+#: they are neither drawn nor scored: ``"upper"`` is for a subject whose legs the cameras do
+#: not see (seated behind a desk); legs that are hidden must not be fitted to whatever hides
+#: them.
+HIDDEN_PARTS = {"upper": ("l_thigh", "l_shin", "l_foot", "r_thigh", "r_shin", "r_foot")}
 
 
 @dataclass(frozen=True)

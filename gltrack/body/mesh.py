@@ -57,6 +57,19 @@ class BodyMesh:
     def n_faces(self) -> int:
         return len(self.faces)
 
+    def without_parts(self, parts) -> "BodyMesh":
+        """This mesh without the faces that touch a vertex of any of ``parts`` (names from
+        :data:`PARTS`), unused vertices dropped; the same mesh when none is named."""
+        drop = np.isin(self.part, [PARTS.index(p) for p in parts])
+        if not drop.any():
+            return self
+        faces = self.faces[~drop[self.faces].any(axis=1)]
+        used = np.unique(faces)
+        remap = np.full(len(self.vertices), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        return BodyMesh(self.vertices[used], remap[faces], self.joints[used], self.weights[used],
+                        self.part[used])
+
     def skin(self, skinning: np.ndarray) -> np.ndarray:
         """CPU linear blend skinning.
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dofs import PRESETS, DofSet, make_dofs
+from .dofs import HIDDEN_PARTS, PRESETS, DofSet, make_dofs
 from .kinematics import Kinematics, Pose
 from .markers import Markers, default_markers
 from .mesh import BodyMesh, make_body_mesh
@@ -42,6 +42,9 @@ class BodyModel:
     #: Shape parameters the procedural mesh was made with (:func:`make_body_mesh`).
     girth_scale: float = 1.0
     girths: dict = field(default_factory=dict)
+    #: The whole surface when the DOF preset leaves parts out of ``mesh``
+    #: (:data:`gltrack.body.dofs.HIDDEN_PARTS`), else None.
+    whole_mesh: BodyMesh | None = None
 
     @classmethod
     def build(cls, skeleton: Skeleton | None = None, preset: str = "full", lod: int = 1,
@@ -54,13 +57,20 @@ class BodyModel:
         girths = {str(k): float(v) for k, v in (girths or {}).items()}
         if mesh is None:
             mesh = make_body_mesh(skeleton, lod=lod, girth_scale=girth_scale, girths=girths)
-        return cls(skeleton, dofs, Kinematics(skeleton, dofs), mesh,
-                   default_markers(skeleton, mesh), lod, float(girth_scale), girths)
+        # markers sit on the whole surface: a hidden leg's markers still follow its bones
+        markers = default_markers(skeleton, mesh)
+        shown = mesh.without_parts(HIDDEN_PARTS.get(preset, ()))
+        return cls(skeleton, dofs, Kinematics(skeleton, dofs), shown, markers, lod,
+                   float(girth_scale), girths, None if shown is mesh else mesh)
 
     def with_preset(self, preset: str) -> "BodyModel":
+        """The same body with the DOF preset ``preset`` (and the surface that preset shows)."""
         dofs = make_dofs(self.skeleton, preset)
-        return BodyModel(self.skeleton, dofs, Kinematics(self.skeleton, dofs), self.mesh,
-                         self.markers, self.lod, self.girth_scale, dict(self.girths))
+        whole = self.whole_mesh or self.mesh
+        shown = whole.without_parts(HIDDEN_PARTS.get(preset, ()))
+        return BodyModel(self.skeleton, dofs, Kinematics(self.skeleton, dofs), shown,
+                         self.markers, self.lod, self.girth_scale, dict(self.girths),
+                         None if shown is whole else whole)
 
     def pose(self, params) -> Pose:
         return self.kin.forward(params)

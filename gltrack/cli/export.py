@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gltrack.body.dofs import PRESETS
+
 from .common import check_output_file
 
 NAME = "export"
@@ -24,7 +26,7 @@ def add_arguments(p):
                    help="file to write (default: RESULT/poses.<format>)")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the dataset's, else 30)")
-    p.add_argument("--dof", choices=["full", "38", "25"], default=None,
+    p.add_argument("--dof", choices=list(PRESETS), default=None,
                    help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
     p.add_argument("--points", choices=["markers", "joints"], default="markers",

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gltrack.body.dofs import PRESETS
+
 from .common import check_output_file
 
 NAME = "render"
@@ -22,7 +24,7 @@ def add_arguments(p):
                    help="video frame rate (default: the dataset's)")
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="render only the first N frames of the result")
-    p.add_argument("--dof", choices=["full", "38", "25"], default=None,
+    p.add_argument("--dof", choices=list(PRESETS), default=None,
                    help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
 

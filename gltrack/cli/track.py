@@ -1,6 +1,8 @@
 """``gltrack track DATASET --method M --out RESULT``: track a dataset, write a results folder."""
 from pathlib import Path
 
+from gltrack.body.dofs import PRESETS
+
 NAME = "track"
 HELP = "track a dataset with one of the trackers and write a results folder (crash-safe, --resume)"
 
@@ -41,8 +43,10 @@ def add_arguments(p):
                         "recorded (for synthetic data the true) skeleton, an oracle for "
                         "ablations; or a body.json written by an earlier run (or its results "
                         "folder) or by hand")
-    p.add_argument("--dof", choices=["full", "38", "25"],
-                   help="DOF preset overriding the --body record's")
+    p.add_argument("--dof", choices=list(PRESETS),
+                   help="DOF preset overriding the --body record's; 'upper': the legs are fixed "
+                        "and left out of the fit, for a subject seen from the waist up (seated "
+                        "behind a desk)")
     p.add_argument("--lost-frames", type=int, default=3, metavar="N",
                    help="re-start a tracker whose fit stays worse than its lost threshold for N "
                         "frames in a row (the current track and the automatic start are each "

@@ -54,7 +54,7 @@ def body_for_result(result: dict, body_meta: dict | None = None, preset: str | N
     body_meta : dict, optional
         A dataset's ``meta.json`` ``body`` record; None for the default body. Unused when
         ``body`` is given.
-    preset : {"full", "38", "25"}, optional
+    preset : a key of :data:`gltrack.body.dofs.PRESETS`, optional
         DOF preset overriding the recorded one (as ``gltrack track --dof`` does). With ``body``
         it may only repeat the recorded preset.
     where : str

@@ -78,6 +78,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from gltrack.body.dofs import HIDDEN_PARTS
 from gltrack.body.kinematics import Kinematics
 from gltrack.body.measure import bone_lengths
 from gltrack.body.mesh import make_body_mesh
@@ -692,8 +693,9 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
     dataset : gltrack.data.dataset.Dataset, a multiview (colour cameras, masks or empty-scene
         frames) or depth dataset
     ctx : moderngl.Context
-    preset : str, DOF preset of the returned body (the search always uses "full": a body is
-        measured better with all its joints free)
+    preset : str, DOF preset of the returned body (the search uses "full": a body is measured
+        better with all its joints free; except a preset that hides parts,
+        :data:`gltrack.body.dofs.HIDDEN_PARTS`, whose hidden surface must stay out of the cost)
     frames : sequence of int, optional, the frames to use; default ``n_frames`` frames spread
         over the first ``span`` seconds. A first frame without a person is skipped (the next
         frames are tried, up to 30).
@@ -718,7 +720,10 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
     t0 = time.perf_counter()
     rng = rng if rng is not None else np.random.default_rng(0)
     template = StretchedTemplate(lod=TEMPLATE_LOD)
-    tbody = BodyModel.build(template.skeleton, "full", template.lod, mesh=template.mesh)
+    # the search's preset: "full", or a preset that hides parts (their DOFs fixed, their
+    # surface not scored: hidden legs must not be fitted to the desk that hides them)
+    search_preset = preset if preset in HIDDEN_PARTS else "full"
+    tbody = BodyModel.build(template.skeleton, search_preset, template.lod, mesh=template.mesh)
     if dataset.rig == "depth":
         views = _DepthFrames(dataset, ctx, tbody, tile, rng)
     elif dataset.rig == "multiview":
@@ -754,7 +759,7 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                                   if f + first - chosen[0] < dataset.frames]})
         search = _Search(views, template, tbody.dofs, dataset.fps)
         search.shape = Proportions(height=float(np.clip(h_guess, 1.0, 2.2)))
-        x = views.initial_pose(chosen[0], BodyModel.build(search.shape.skeleton(), "full"))
+        x = views.initial_pose(chosen[0], BodyModel.build(search.shape.skeleton(), search_preset))
         views.add(chosen[0], x)
         search.poses.append(search.settle(0, x))
         stage(f"start (frame {chosen[0]})", search.refit(0.5))
@@ -800,7 +805,7 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
         skeleton = shape.skeleton()
         body = BodyModel.build(skeleton, preset, lod, girth_scale=shape.girth)
         poses = np.stack(search.poses)
-        if preset != "full":
+        if preset != search_preset:
             full = np.asarray(search.dofs.names)
             poses = np.stack([[p[list(full).index(n)] if n in full else 0.0
                                for n in body.dofs.names] for p in poses])
