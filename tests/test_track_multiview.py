@@ -384,3 +384,17 @@ def test_a_track_that_explained_the_person_away_is_not_a_good_fit(dataset, ctx):
         assert all(v is None or 0.0 <= v <= 1.0 for v in info["iou"])
     finally:
         tr.close()
+
+
+def test_a_start_pose_that_left_the_person_is_not_used():
+    """Masks that miss much of the person (a still torso) let a model out of view score well;
+    the automatic start keeps only refined poses near where they were placed, unless none is."""
+    from gltrack.track.multiview import near_home
+
+    X = np.zeros((4, 8))
+    X[:, 0] = [0.1, 3.0, -0.4, 12.0]  # root x, metres from the hull at 0
+    cost = np.array([50.0, 10.0, 40.0, 5.0])
+    kept, c = near_home(X, cost, np.zeros(3), 1.0)
+    assert kept[:, 0].tolist() == [0.1, -0.4] and c.tolist() == [50.0, 40.0]
+    far = X[[1, 3]]
+    assert near_home(far, cost[[1, 3]], np.zeros(3), 1.0)[0] is far  # nothing near: all kept

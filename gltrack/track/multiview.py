@@ -99,6 +99,18 @@ PRIORS = ("diffusion", "vlmm")
 APPEARANCE_INITS = ("full", "tile")
 
 
+def near_home(X, cost, home, max_shift: float):
+    """The poses of ``X`` (N, D) whose root (first 3 entries) lies within ``max_shift`` metres
+    of ``home`` (3,), with their costs (N,); all of them when none or all do (nothing to
+    prefer)."""
+    near = np.linalg.norm(np.asarray(X)[:, :3] - home, axis=1) <= max_shift
+    if near.any() and not near.all():
+        log.info("auto init: %d refined poses moved more than %.1f m from the hull and are not "
+                 "used", int((~near).sum()), max_shift)
+        return X[near], cost[near]
+    return X, cost
+
+
 @dataclass
 class MultiviewOptions(Options):
     """Options of the multi-view trackers (``--config`` keys; the DOF preset is ``--dof``);
@@ -315,6 +327,10 @@ class MultiviewTracker(Tracker):
     #: set was turned 90 degrees. Real masks are worse than simulated ones (a mask IoU of 0.8
     #: alone gives about 0.25), hence the margin.
     lost_quality = 0.45
+    #: metres a refined start pose may move from where it was placed on the visual hull
+    #: (:meth:`start_hypotheses`): a body stands within about half its height of its volume
+    #: centroid, so a root further than this has left the person
+    INIT_MAX_SHIFT = 1.0
     #: below this share of the foreground left by the environment layers
     #: (:attr:`SilhouetteLikelihood.kept_fraction`) a frame's quality is at least the share
     #: removed: the layers take out other people and clutter (a second person in the
@@ -408,6 +424,10 @@ class MultiviewTracker(Tracker):
             final += [res.best, res.estimate]
         final = d.validate(np.stack(final))
         e_final = self.likelihood.scores(final)[0]
+        # a refined pose that left the hull has explained the person away (masks that miss
+        # much of the person, e.g. a still torso, make a model out of view score well): it may
+        # not start the tracker while one near the person does
+        final, e_final = near_home(final, e_final, seeds[:, :3].mean(axis=0), self.INIT_MAX_SHIFT)
         log.info("auto init: %d placed poses (best silhouette error %.0f px), refined to %.0f px",
                  len(P), e_s.min(), e_final.min())
         return two_modes(final, e_final, d.index("pelvis_ry"))
