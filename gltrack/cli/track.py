@@ -13,6 +13,8 @@ TRACKER_FLAGS = ("particles", "layers", "prior", "behaviour")
 def add_arguments(p):
     from gltrack.track.registry import METHODS
 
+    from .common import add_dof_option
+
     p.add_argument("dataset", help="dataset folder (gltrack-dataset version 1)")
     p.add_argument("--method", required=True, choices=sorted(METHODS),
                    help="; ".join(f"{name}: {m.summary}" for name, m in METHODS.items()))
@@ -33,7 +35,7 @@ def add_arguments(p):
                    help="initial pose: 'auto' finds the body from nothing (a later frame when the "
                         "first shows no person); 'groundtruth' takes the true first pose from "
                         "groundtruth.npz (an oracle, for ablations only); or a .npy/.npz pose file")
-    p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
+    p.add_argument("--frames", metavar="A:B", help="dataset frames A (inclusive) to B (exclusive); default: all")
     p.add_argument("--body", default="estimate", metavar="estimate|dataset|FILE.json",
                    help="body to track with, recorded in RESULT/body.json: 'estimate' (default) "
                         "measures the subject's skeleton and girth on the first frames; "
@@ -41,8 +43,7 @@ def add_arguments(p):
                         "recorded (for synthetic data the true) skeleton, an oracle for "
                         "ablations; or a body.json written by an earlier run (or its results "
                         "folder) or by hand")
-    p.add_argument("--dof", choices=["full", "38", "25"],
-                   help="DOF preset overriding the --body record's")
+    add_dof_option(p, help="DOF preset overriding the --body record's")
     p.add_argument("--lost-frames", type=int, default=3, metavar="N",
                    help="re-start a tracker whose fit stays worse than its lost threshold for N "
                         "frames in a row (the current track and the automatic start are each "
@@ -52,14 +53,11 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=0, help="random seed (particle filters)")
 
 
-def _frames(text, usage_error):
-    if not text:
-        return None
-    try:
-        a, b = text.split(":")
-        return int(a), int(b)
-    except ValueError:
-        raise usage_error(f"--frames must look like A:B, got {text!r}") from None
+def _frames(text, usage_error=None):
+    """``--frames A:B`` -> (A, B), or None when not given (:func:`.common.parse_frames`)."""
+    from .common import parse_frames
+
+    return parse_frames(text) if text else None
 
 
 def load_config(path, usage_error):
