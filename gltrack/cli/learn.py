@@ -22,7 +22,8 @@ def add_arguments(p):
     from .common import add_dof_option
 
     p.add_argument("--motion", nargs="+", required=True, metavar="CLIP.bvh",
-                   help="training motion clips (BVH; retargeted onto the gltrack body)")
+                   help="training motion clips (BVH; retargeted onto the gltrack body; leading "
+                        "frames that jump far from the next, e.g. a T-pose, are skipped)")
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
     p.add_argument("--max-memory", type=int, default=10,
                    help="longest VLMM context, frames (clusters)")
@@ -105,7 +106,7 @@ def run(args):
     _check(args, UsageError)
     seqs, clips, names = [], [], None
     for m in args.motion:
-        _, dofs, params, _ = load_motion(m, args.dof, fps=args.fps)
+        _, dofs, params, _ = load_motion(m, args.dof, fps=args.fps, skip_jumps=True)
         if names is not None and dofs.names != names:
             raise ValueError(f"{m}: its DOFs differ from the first clip's")
         names = dofs.names

@@ -23,7 +23,10 @@ def add_arguments(p):
     p.add_argument("--out", required=True, metavar="DIR", help="dataset folder to create")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="source frames A (inclusive) to B (exclusive), counted at the clip's "
-                        "own frame rate; default: the whole clip")
+                        "own frame rate (e.g. 120 frames/s for CMU clips: 0:120 is one second, "
+                        "whatever --fps), not at --fps; leading frames that jump far from the "
+                        "next (a CMU clip's T-pose frame 0) are skipped with a warning; "
+                        "default: the whole clip")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the dataset "
                    "(the clip is resampled)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
@@ -108,7 +111,7 @@ def run(args):
             raise ValueError(f"{motion}: the clip has {n} frames, but --frames "
                              f"{frames[0]}:{frames[1]} needs {frames[1]}")
     skeleton, dofs, params, _ = load_motion(motion, preset=args.dof, fps=args.fps,
-                                            frames=frames)
+                                            frames=frames, skip_jumps=True)
 
     from gltrack.data.simulate import synthesize
 
