@@ -71,3 +71,18 @@ def test_cmu_walk_tpose_frame_is_skipped(shared):
     steps = np.linalg.norm(np.diff(P[1:], axis=0), axis=2).max(axis=1)
     assert steps.max() < 0.1  # what is left moves smoothly
     assert leading_jumps(read_bvh(hop))[0] == 0  # a clip without a T-pose keeps its frame 0
+
+
+def test_fast_smooth_motion_is_no_discontinuity(tmp_path):
+    """Hands swinging 0.1-0.2 m a frame all along: a jump out of frame 0 as big as every other."""
+    body = BodyModel.build()
+    d = body.dofs
+    T = 30
+    p = np.tile(d.zero(body.skeleton), (T, 1))
+    t = np.arange(T) / FPS
+    for side, sign in (("l", 1), ("r", -1)):
+        p[:, d.index(f"{side}_shoulder_rz")] = -sign * (0.2 + 1.2 * (1 + np.sin(6 * np.pi * t)))
+    path = tmp_path / "fast.bvh"
+    write_bvh(path, params_to_bvh(body, p, FPS))
+    n_skip, jump, typical = leading_jumps(read_bvh(path))
+    assert jump > 0.1 and n_skip == 0, (jump, typical)

@@ -581,7 +581,7 @@ def load_motion(path, preset: str = "full", fps: float | None = None, frames=Non
             if n_skip:
                 ratio = f"{jump / typical:.0f}x" if typical > 0 else "far above"
                 log.warning("%s: skipped source frame%s %s (a discontinuity: a %.2f m joint jump "
-                            "to the next frame, %s the clip's median motion per frame; e.g. a "
+                            "to the next frame, %s the clip's median per frame; e.g. a "
                             "T-pose frame)", path, "s" if n_skip > 1 else "",
                             f"{first}..{first + n_skip - 1}" if n_skip > 1 else first,
                             jump, ratio)
