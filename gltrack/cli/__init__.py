@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     except UsageError as exc:
         if args.debug:
             raise
-        print(f"gltrack {args.command}: {exc}", file=sys.stderr)
+        print(f"gltrack {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("gltrack: interrupted", file=sys.stderr)

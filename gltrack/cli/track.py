@@ -104,11 +104,46 @@ def merge_flags(options: dict, args, usage_error) -> dict:
     return opts
 
 
+def check_input_files(args) -> None:
+    """Files named by ``--init`` and ``--behaviour`` exist and read, checked before the run
+    spends minutes (estimating the body) on the way to them; ValueError naming the file."""
+    import numpy as np
+
+    if args.init not in ("auto", "groundtruth"):
+        path = Path(args.init)
+        if not path.is_file():
+            raise ValueError(f"--init {path}: no such file (give auto, groundtruth or a "
+                             ".npy/.npz pose file)")
+        with open(path, "rb") as f:
+            magic = f.read(6)
+        if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):  # np.load would unpickle
+            raise ValueError(f"--init {path}: not a .npy/.npz pose file")
+        try:
+            arr = np.load(path, allow_pickle=False)
+            if isinstance(arr, np.lib.npyio.NpzFile):
+                arr.close()
+        except Exception as exc:  # corrupt zip, pickled objects, not numpy at all
+            raise ValueError(f"--init {path}: not a readable .npy/.npz pose file "
+                             f"({type(exc).__name__}: {exc})") from None
+    if args.behaviour is not None:
+        if not Path(args.behaviour).is_file():
+            raise ValueError(f"--behaviour {args.behaviour}: no such file")
+        from gltrack.motion.behaviour import BehaviourModel
+
+        BehaviourModel.load(args.behaviour)  # ValueError naming the file and the field
+
+
 def run(args):
     from .common import UsageError
     from gltrack.track.runner import track
 
+    from gltrack.track.registry import options_class
+
     options = merge_flags(load_config(args.config, UsageError), args, UsageError)
+    # the options and the files they name, before the run opens the dataset and spends
+    # minutes on the way to them
+    options_class(args.method).from_dict(options, where=f"options for {args.method}")
+    check_input_files(args)
     if args.lost_frames < 0:
         raise UsageError(f"--lost-frames must be at least 0, got {args.lost_frames}")
     timing = track(args.dataset, args.method, args.out, options=options,
