@@ -92,3 +92,13 @@ def test_unknown_method_is_one_line_listing_the_methods(capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--method" in err
     assert all(repr(m) in err for m in METHODS)
+
+
+def test_learn_parts_count_and_its_deprecated_frames(tmp_path, capsys):
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert main(["-q", "learn-parts", "--count", "4", "--heldout", "0", "--out", str(a)]) == 0
+    assert "deprecated" not in capsys.readouterr().err
+    assert main(["-q", "learn-parts", "--frames", "4", "--heldout", "0", "--out", str(b)]) == 0
+    err = capsys.readouterr().err
+    assert "--frames N is deprecated, use --count N" in err and err.count("\n") == 1
+    assert a.is_file() and b.is_file()

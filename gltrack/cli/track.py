@@ -121,10 +121,16 @@ def check_input_files(args) -> None:
         try:
             arr = np.load(path, allow_pickle=False)
             if isinstance(arr, np.lib.npyio.NpzFile):
-                arr.close()
+                with arr:
+                    if "params" not in arr.files:
+                        raise ValueError("no 'params' array")
+                    arr = arr["params"]
         except Exception as exc:  # corrupt zip, pickled objects, not numpy at all
             raise ValueError(f"--init {path}: not a readable .npy/.npz pose file "
                              f"({type(exc).__name__}: {exc})") from None
+        if arr.dtype.kind not in "fiu" or arr.ndim not in (1, 2) or arr.size == 0:
+            raise ValueError(f"--init {path}: must hold a pose (D,) or poses (N, D) of numbers, "
+                             f"got {arr.dtype} {arr.shape}")
     if args.behaviour is not None:
         if not Path(args.behaviour).is_file():
             raise ValueError(f"--behaviour {args.behaviour}: no such file")
