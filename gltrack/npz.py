@@ -18,6 +18,16 @@ def read_npz(path) -> dict:
     """
     path = Path(path)
     try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except FileNotFoundError:
+        raise ValueError(f"{path}: missing") from None
+    except OSError as exc:  # a folder, no permission
+        raise ValueError(f"{path}: unreadable ({exc.strerror or exc})") from None
+    if magic not in (b"PK\x03\x04", b"PK\x05\x06"):  # np.load would try to unpickle it
+        what = "a single .npy array" if magic == b"\x93NUM" else "not a zip archive"
+        raise ValueError(f"{path}: not a valid npz file ({what})")
+    try:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     except FileNotFoundError:

@@ -9,12 +9,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def shared_dir() -> Path | None:
-    """The read-only reference folder (``GLTRACK_SHARED`` or ``../shared``), or None."""
+    """The read-only reference folder: ``GLTRACK_SHARED`` when set, else ``../shared``; None
+    when that is not a folder (as :func:`gltrack.bench.shared_dir` finds it)."""
     env = os.environ.get("GLTRACK_SHARED")
-    for cand in ([Path(env)] if env else []) + [REPO.parent / "shared"]:
-        if cand.is_dir():
-            return cand
-    return None
+    cand = Path(env) if env else REPO.parent / "shared"
+    return cand if cand.is_dir() else None
 
 
 @pytest.fixture(scope="session")

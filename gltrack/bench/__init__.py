@@ -4,12 +4,20 @@ import platform
 from pathlib import Path
 
 
-def shared_dir() -> Path | None:
-    """The read-only reference folder: ``GLTRACK_SHARED``, or ``../shared`` beside the
-    repository (for a source checkout), or None when neither exists."""
+def shared_candidates() -> list[Path]:
+    """Where the reference folder is looked for: ``GLTRACK_SHARED`` alone when it is set,
+    else ``../shared`` beside the repository (a source checkout)."""
     env = os.environ.get("GLTRACK_SHARED")
-    repo = Path(__file__).resolve().parents[2]
-    for cand in ([Path(env)] if env else []) + [repo.parent / "shared"]:
+    if env:
+        return [Path(env)]
+    return [Path(__file__).resolve().parents[2].parent / "shared"]
+
+
+def shared_dir() -> Path | None:
+    """The read-only reference folder: ``GLTRACK_SHARED`` when set, else ``../shared`` beside
+    the repository (for a source checkout); None when it is not a folder (a ``GLTRACK_SHARED``
+    that names no folder is not silently replaced by ``../shared``)."""
+    for cand in shared_candidates():
         if cand.is_dir():
             return cand
     return None

@@ -96,7 +96,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     modes : iterable of str, optional
         Subset of :data:`MODES`.
     with_baseline : bool
-        Measure the pyrender baseline (needs the ``oracle`` extra: pyrender, PyOpenGL).
+        Measure the pyrender baseline (pyrender, PyOpenGL: core dependencies).
 
     Returns
     -------

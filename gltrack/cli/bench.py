@@ -1,5 +1,6 @@
 """``gltrack bench``: measured figures (engine throughput; tracker accuracy benches as they land)."""
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -11,7 +12,9 @@ SUITES = ("engine", "depth", "multiview", "vlmm")
 def add_arguments(p):
     p.add_argument("suite", choices=SUITES,
                    help="engine: scoring throughput vs the naive way; depth / multiview / vlmm: tracker "
-                        "accuracy on data synthesised from ../shared/mocap")
+                        "accuracy on data synthesised from the reference CMU clips in "
+                        "$GLTRACK_SHARED/mocap (default ../shared/mocap beside the repository); "
+                        "they refuse to run without them")
     p.add_argument("--json", metavar="FILE", help="also write the results to FILE")
     p.add_argument("--quick", action="store_true", help="fewer candidates and repeats (noisier)")
     p.add_argument("--no-baseline", action="store_true", help="skip the pyrender baseline")
@@ -67,7 +70,56 @@ def _suite(name):
     return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed)), format_table
 
 
+def _suite_files(name) -> list[str]:
+    """The reference files (relative to the shared folder) that bench suite ``name`` runs on."""
+    if name == "depth":
+        from gltrack.data.depth_clips import CLIPS
+
+        return [f"mocap/{bvh}" for bvh, _ in CLIPS.values()]
+    if name == "multiview":
+        from gltrack.bench.multiview import CLIPS
+
+        return [f"mocap/{bvh}" for bvh, _ in CLIPS.values()]
+    if name == "vlmm":
+        from gltrack.bench.vlmm import CLIP
+
+        return [CLIP]
+    return []
+
+
+def check_reference_data(name) -> None:
+    """Refuse (``FileNotFoundError``, one line) to run bench suite ``name`` without the
+    reference clips it synthesises its data from: it would do nothing and say little.
+
+    Generated motion is no substitute: the benches' figures are the CMU clips' (comparable
+    from run to run and with the README), so without those clips there is nothing to measure.
+    Some clips missing only skips those (a warning on stderr).
+    """
+    from gltrack.bench import shared_candidates, shared_dir
+
+    files = _suite_files(name)
+    if not files:
+        return
+    how = ("set GLTRACK_SHARED to the folder that holds mocap/ (the project's shared "
+           "reference data)")
+    shared = shared_dir()
+    if shared is None:
+        where = shared_candidates()[0]
+        source = "GLTRACK_SHARED" if os.environ.get("GLTRACK_SHARED") else "../shared"
+        names = files[0] + (", ..." if len(files) > 1 else "")
+        raise FileNotFoundError(f"bench {name} needs the reference motion clips ({names}): "
+                                f"no folder {where} ({source}); {how}")
+    missing = [f for f in files if not (shared / f).is_file()]
+    if len(missing) == len(files):
+        raise FileNotFoundError(f"bench {name} needs the reference motion clips: none of "
+                                f"{', '.join(str(shared / f) for f in files)} exists; {how}")
+    for f in missing:
+        print(f"gltrack bench: warning: {shared / f} not found, its runs are skipped",
+              file=sys.stderr)
+
+
 def run(args):
+    check_reference_data(args.suite)
     bench, fmt = _suite(args.suite)
     res = bench(args)
     if args.json:  # before the table: the figures are kept whatever the formatting does

@@ -3,9 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.body.dofs import PRESETS
-
-from .common import check_output_file
+from .common import add_dof_option, check_output_file
 
 NAME = "export"
 HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "
@@ -26,8 +24,7 @@ def add_arguments(p):
                    help="file to write (default: RESULT/poses.<format>)")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the dataset's, else 30)")
-    p.add_argument("--dof", choices=list(PRESETS), default=None,
-                   help="DOF preset the result was tracked with, for results without "
+    add_dof_option(p, help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
     p.add_argument("--points", choices=["markers", "joints"], default="markers",
                    help="what a .trc file holds: surface markers or joint centres")

@@ -19,8 +19,11 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p):
+    from .common import add_dof_option
+
     p.add_argument("--motion", nargs="+", required=True, metavar="CLIP.bvh",
-                   help="training motion clips (BVH; retargeted onto the gltrack body)")
+                   help="training motion clips (BVH; retargeted onto the gltrack body; leading "
+                        "frames that jump far from the next, e.g. a T-pose, are skipped)")
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
     p.add_argument("--max-memory", type=int, default=10,
                    help="longest VLMM context, frames (clusters)")
@@ -28,8 +31,8 @@ def add_arguments(p):
                    help="VLMM significance threshold on the weighted KL gain (nats)")
     p.add_argument("--fps", type=float, default=30.0,
                    help="frame rate to learn at (clips are resampled); use the tracked data's rate")
-    p.add_argument("--preset", choices=["25", "38", "full"], default="25",
-                   help="DOF preset of the modelled joint angles (25: Caillette's model)")
+    add_dof_option(p, default="25", help="DOF preset of the modelled joint angles (default 25: "
+                                         "Caillette's model)")
     p.add_argument("--no-augment", action="store_true",
                    help="do not add speed-resampled and smoothed copies of the training clips")
     p.add_argument("--heldout", type=float, default=0.2, metavar="FRAC",
@@ -103,7 +106,7 @@ def run(args):
     _check(args, UsageError)
     seqs, clips, names = [], [], None
     for m in args.motion:
-        _, dofs, params, _ = load_motion(m, args.preset, fps=args.fps)
+        _, dofs, params, _ = load_motion(m, args.dof, fps=args.fps, skip_jumps=True)
         if names is not None and dofs.names != names:
             raise ValueError(f"{m}: its DOFs differ from the first clip's")
         names = dofs.names
@@ -118,7 +121,7 @@ def run(args):
                                augment=not args.no_augment, k_max=args.k_max,
                                max_memory=args.max_memory, epsilon=args.epsilon,
                                min_count=args.min_count, dof_names=names[6:])
-    model.info["preset"] = args.preset
+    model.info["preset"] = args.dof
     model.info["clips"] = [str(p) for p, _ in clips]
     model.save(args.out)
     print(format_report(model.report(), clips))

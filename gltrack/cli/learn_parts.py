@@ -4,7 +4,7 @@ The shipped model (``assets/parts.npz`` in the repository, ``gltrack.asset_path(
 in any install) is rebuilt by
 ``gltrack learn-parts --mocap ../shared/mocap --out assets/parts.npz --seed 0``: depth datasets
 synthesised from the depth bench's CMU clips at source frames disjoint from the bench's
-(:data:`gltrack.data.depth_clips.TRAIN_RANGES`) plus ``--frames`` (400) rendered random poses.
+(:data:`gltrack.data.depth_clips.TRAIN_RANGES`) plus ``--count`` (400) rendered random poses.
 Real motion (a spin, a dance, turning away from the camera, 3-5 m away) teaches the patch
 classifier what the random poses at 3.6 m alone did not (that model found the head at 38 % and
 the hands at 39 % of the hop clip's head and hand interest points); the random poses keep it
@@ -12,8 +12,10 @@ general (trained on the clips alone it missed the hand of the unit tests' proced
 """
 from __future__ import annotations
 
+import argparse
 import json
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +43,11 @@ def add_arguments(p):
     p.add_argument("--radius", type=float, default=None, metavar="M",
                    help="labelling radius in metres (default: by ground-truth kind, 0.10 for "
                         "part tips, more for marker/joint proxies)")
-    p.add_argument("--frames", type=int, default=400,
-                   help="rendered random-pose frames: the training set without --data, "
+    p.add_argument("--count", type=int, default=400, metavar="N",
+                   help="number of rendered random-pose frames: the training set without --data, "
                         "added to the clips' with --mocap")
+    # --frames was this count; it means a range A:B in every other command
+    p.add_argument("--frames", dest="frames_count", default=None, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help="random seed for rendered frames")
     p.add_argument("--json", metavar="FILE", default=None, help="write the report as JSON")
 
@@ -98,6 +102,18 @@ def run(args):
     if args.radius is not None and not args.radius > 0:
         raise UsageError(f"--radius must be positive, got {args.radius}")
 
+    if args.frames_count is not None:
+        try:
+            args.count = int(args.frames_count)
+        except ValueError:
+            raise UsageError(f"--frames {args.frames_count}: learn-parts takes a count of rendered "
+                             "frames, now --count N (--frames A:B is a range in the other "
+                             "commands)") from None
+        print("gltrack learn-parts: warning: --frames N is deprecated, use --count N",
+              file=sys.stderr)
+    if args.count < 0:
+        raise UsageError(f"--count must be >= 0, got {args.count}")
+
     tmp = None
     if args.mocap:
         import tempfile
@@ -128,12 +144,12 @@ def _train(args, out):
 
     report_rendered = {}
     if not args.data:
-        if args.frames < 2:
-            raise UsageError(f"--frames must be at least 2, got {args.frames}")
-        model, report = C.train_default_model(np.random.default_rng(args.seed), args.frames,
+        if args.count < 2:
+            raise UsageError(f"--count must be at least 2 without --data, got {args.count}")
+        model, report = C.train_default_model(np.random.default_rng(args.seed), args.count,
                                               args.heldout)
-        n_train = args.frames - int(round(args.heldout * args.frames))
-        source = f"{args.frames} rendered frames"
+        n_train = args.count - int(round(args.heldout * args.count))
+        source = f"{args.count} rendered frames"
     else:
         splits = [(d, *_split(d, args.heldout)) for d in args.data]
         radius = args.radius or max(s[3] for s in splits)
@@ -145,7 +161,7 @@ def _train(args, out):
             # saw the hand of the unit tests' procedural subject)
             from gltrack.evidence.synthetic import render_frames
 
-            frames = render_frames(np.random.default_rng(args.seed), args.frames)
+            frames = render_frames(np.random.default_rng(args.seed), args.count)
             n_test = int(round(args.heldout * len(frames)))
             rendered_test, rendered = frames[:n_test], frames[n_test:]
 

@@ -3,9 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gltrack.body.dofs import PRESETS
-
-from .common import check_output_file
+from .common import add_dof_option, check_output_file
 
 NAME = "render"
 HELP = ("overlay video: the tracked body, its skeleton and the ground truth drawn over the "
@@ -24,8 +22,7 @@ def add_arguments(p):
                    help="video frame rate (default: the dataset's)")
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="render only the first N frames of the result")
-    p.add_argument("--dof", choices=list(PRESETS), default=None,
-                   help="DOF preset the result was tracked with, for results without "
+    add_dof_option(p, help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
 
 

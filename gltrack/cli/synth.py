@@ -13,7 +13,7 @@ HELP = ("synthesise a dataset (one ToF depth camera, or several colour cameras w
 
 
 def add_arguments(p):
-    from gltrack.body.dofs import PRESETS
+    from .common import add_dof_option
     from gltrack.data.sim_depth import NOISE_LEVELS
     from gltrack.data.simulate import DISTRACTORS, OCCLUDERS
     from gltrack.data.subject import GIRTH_SCALE_RANGE
@@ -23,7 +23,10 @@ def add_arguments(p):
     p.add_argument("--out", required=True, metavar="DIR", help="dataset folder to create")
     p.add_argument("--frames", default=None, metavar="A:B",
                    help="source frames A (inclusive) to B (exclusive), counted at the clip's "
-                        "own frame rate; default: the whole clip")
+                        "own frame rate (e.g. 120 frames/s for CMU clips: 0:120 is one second, "
+                        "whatever --fps), not at --fps; leading frames that jump far from the "
+                        "next (a CMU clip's T-pose frame 0) are skipped with a warning; "
+                        "default: the whole clip")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the dataset "
                    "(the clip is resampled)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
@@ -37,7 +40,8 @@ def add_arguments(p):
                    help="moving non-human object beside the subject")
     p.add_argument("--noise", default="default", choices=list(NOISE_LEVELS),
                    help="scale of every sensor effect")
-    p.add_argument("--preset", default="full", choices=list(PRESETS), help="DOF preset")
+    add_dof_option(p, default="full", help="DOF preset of the ground truth's joint angles "
+                   "(default: full)")
     p.add_argument("--mesh", default=None, metavar="SUBJECT.glb",
                    help="draw the subject with this rigged glTF body (joints named as in the "
                         "CMU skeleton, e.g. ../shared/meshes/makehuman_cmu_male1591.glb), "
@@ -63,16 +67,10 @@ def parse_size(text):
 
 
 def parse_frames(text):
-    """``"A:B"`` -> (A, B) with 0 <= A < B; UsageError otherwise."""
-    from .common import UsageError
+    """``"A:B"`` -> (A, B) with 0 <= A < B; UsageError otherwise (:func:`.common.parse_frames`)."""
+    from .common import parse_frames as parse
 
-    m = re.fullmatch(r"\s*(\d+)\s*:\s*(\d+)\s*", text or "")
-    if not m:
-        raise UsageError(f"--frames must look like A:B with integers A < B, got {text!r}")
-    a, b = int(m.group(1)), int(m.group(2))
-    if a >= b:
-        raise UsageError(f"--frames A:B needs A < B, got {a}:{b}")
-    return a, b
+    return parse(text)
 
 
 def run(args):
@@ -112,8 +110,8 @@ def run(args):
         if frames[1] > n:
             raise ValueError(f"{motion}: the clip has {n} frames, but --frames "
                              f"{frames[0]}:{frames[1]} needs {frames[1]}")
-    skeleton, dofs, params, _ = load_motion(motion, preset=args.preset, fps=args.fps,
-                                            frames=frames)
+    skeleton, dofs, params, _ = load_motion(motion, preset=args.dof, fps=args.fps,
+                                            frames=frames, skip_jumps=True)
 
     from gltrack.data.simulate import synthesize
 

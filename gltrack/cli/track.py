@@ -1,8 +1,6 @@
 """``gltrack track DATASET --method M --out RESULT``: track a dataset, write a results folder."""
 from pathlib import Path
 
-from gltrack.body.dofs import PRESETS
-
 NAME = "track"
 HELP = "track a dataset with one of the trackers and write a results folder (crash-safe, --resume)"
 
@@ -14,6 +12,8 @@ TRACKER_FLAGS = ("particles", "layers", "prior", "behaviour")
 
 def add_arguments(p):
     from gltrack.track.registry import METHODS
+
+    from .common import add_dof_option
 
     p.add_argument("dataset", help="dataset folder (gltrack-dataset version 1)")
     p.add_argument("--method", required=True, choices=sorted(METHODS),
@@ -35,7 +35,7 @@ def add_arguments(p):
                    help="initial pose: 'auto' finds the body from nothing (a later frame when the "
                         "first shows no person); 'groundtruth' takes the true first pose from "
                         "groundtruth.npz (an oracle, for ablations only); or a .npy/.npz pose file")
-    p.add_argument("--frames", metavar="A:B", help="track only dataset frames A..B-1")
+    p.add_argument("--frames", metavar="A:B", help="dataset frames A (inclusive) to B (exclusive); default: all")
     p.add_argument("--body", default="estimate", metavar="estimate|dataset|FILE.json",
                    help="body to track with, recorded in RESULT/body.json: 'estimate' (default) "
                         "measures the subject's skeleton and girth on the first frames; "
@@ -43,10 +43,9 @@ def add_arguments(p):
                         "recorded (for synthetic data the true) skeleton, an oracle for "
                         "ablations; or a body.json written by an earlier run (or its results "
                         "folder) or by hand")
-    p.add_argument("--dof", choices=list(PRESETS),
-                   help="DOF preset overriding the --body record's; 'upper': the legs are fixed "
-                        "and left out of the fit, for a subject seen from the waist up (seated "
-                        "behind a desk)")
+    add_dof_option(p, help="DOF preset overriding the --body record's; 'upper': the legs are "
+                           "fixed and left out of the fit, for a subject seen from the waist up "
+                           "(seated behind a desk)")
     p.add_argument("--lost-frames", type=int, default=3, metavar="N",
                    help="re-start a tracker whose fit stays worse than its lost threshold for N "
                         "frames in a row (the current track and the automatic start are each "
@@ -56,14 +55,11 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=0, help="random seed (particle filters)")
 
 
-def _frames(text, usage_error):
-    if not text:
-        return None
-    try:
-        a, b = text.split(":")
-        return int(a), int(b)
-    except ValueError:
-        raise usage_error(f"--frames must look like A:B, got {text!r}") from None
+def _frames(text, usage_error=None):
+    """``--frames A:B`` -> (A, B), or None when not given (:func:`.common.parse_frames`)."""
+    from .common import parse_frames
+
+    return parse_frames(text) if text else None
 
 
 def load_config(path, usage_error):
@@ -110,11 +106,52 @@ def merge_flags(options: dict, args, usage_error) -> dict:
     return opts
 
 
+def check_input_files(args) -> None:
+    """Files named by ``--init`` and ``--behaviour`` exist and read, checked before the run
+    spends minutes (estimating the body) on the way to them; ValueError naming the file."""
+    import numpy as np
+
+    if args.init not in ("auto", "groundtruth"):
+        path = Path(args.init)
+        if not path.is_file():
+            raise ValueError(f"--init {path}: no such file (give auto, groundtruth or a "
+                             ".npy/.npz pose file)")
+        with open(path, "rb") as f:
+            magic = f.read(6)
+        if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):  # np.load would unpickle
+            raise ValueError(f"--init {path}: not a .npy/.npz pose file")
+        try:
+            arr = np.load(path, allow_pickle=False)
+            if isinstance(arr, np.lib.npyio.NpzFile):
+                with arr:
+                    if "params" not in arr.files:
+                        raise ValueError("no 'params' array")
+                    arr = arr["params"]
+        except Exception as exc:  # corrupt zip, pickled objects, not numpy at all
+            raise ValueError(f"--init {path}: not a readable .npy/.npz pose file "
+                             f"({type(exc).__name__}: {exc})") from None
+        if arr.dtype.kind not in "fiu" or arr.ndim not in (1, 2) or arr.size == 0:
+            raise ValueError(f"--init {path}: must hold a pose (D,) or poses (N, D) of numbers, "
+                             f"got {arr.dtype} {arr.shape}")
+    if args.behaviour is not None:
+        if not Path(args.behaviour).is_file():
+            raise ValueError(f"--behaviour {args.behaviour}: no such file")
+        from gltrack.motion.behaviour import BehaviourModel
+
+        BehaviourModel.load(args.behaviour)  # ValueError naming the file and the field
+
+
 def run(args):
     from .common import UsageError
     from gltrack.track.runner import track
 
+    from gltrack.track.registry import options_class
+
     options = merge_flags(load_config(args.config, UsageError), args, UsageError)
+    # the options and the files they name, before the run opens the dataset and spends
+    # minutes on the way to them
+    options_class(args.method).from_dict(options, where=f"options for {args.method}")
+    check_input_files(args)
     if args.lost_frames < 0:
         raise UsageError(f"--lost-frames must be at least 0, got {args.lost_frames}")
     timing = track(args.dataset, args.method, args.out, options=options,

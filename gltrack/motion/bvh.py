@@ -216,6 +216,53 @@ class Bvh:
         return replace(self, motion=self.motion[frames].copy())
 
 
+# ---------------------------------------------------------------------- discontinuities
+#: a first frame is a discontinuity when its largest joint jump to the next frame is more than
+#: this many times the median over the clip's frames of that largest jump ...
+JUMP_FACTOR = 10.0
+#: ... and more than this many metres (CMU clips open with a T-pose frame: 0.6 m jumps)
+JUMP_MIN_M = 0.1
+#: at most this many seconds of leading frames are skipped as discontinuities
+JUMP_MAX_SKIP_S = 0.25
+
+
+def leading_jumps(bvh: Bvh, first: int = 0, last: int | None = None) -> tuple[int, float, float]:
+    """How many frames from ``first`` on are discontinuities (a T-pose or calibration frame).
+
+    Frame ``t`` is one when its jump, the largest joint displacement from ``t`` to ``t + 1``,
+    exceeds both :data:`JUMP_FACTOR` times the median jump over the clip's frames (robust to the
+    jumps themselves; like compared with like, so fast hands are not a discontinuity) and
+    :data:`JUMP_MIN_M`. Leading frames are
+    counted while they are discontinuities, at most :data:`JUMP_MAX_SKIP_S` seconds of them and
+    never leaving fewer than 2 frames before ``last``.
+
+    Parameters
+    ----------
+    bvh : Bvh, lengths in metres
+    first : int, first frame of the selection
+    last : int, optional, end (exclusive) of the selection; default: the clip's end
+
+    Returns
+    -------
+    n_skip : int, leading frames that are discontinuities (0: none)
+    jump : float, metres, the largest joint jump out of the first frame
+    typical : float, metres, the clip's median jump per frame
+    """
+    n = bvh.n_frames
+    last = n if last is None else min(int(last), n)
+    if n < 3 or last - first < 3:
+        return 0, 0.0, 0.0
+    P, _ = bvh.fk()
+    jumps = np.linalg.norm(np.diff(P, axis=0), axis=2).max(axis=1)  # (T-1,)
+    typical = float(np.median(jumps))
+    limit = max(JUMP_FACTOR * typical, JUMP_MIN_M)
+    cap = min(max(1, int(round(JUMP_MAX_SKIP_S * bvh.fps))), last - first - 2)
+    k = 0
+    while k < cap and jumps[first + k] > limit:
+        k += 1
+    return k, float(jumps[first]), typical
+
+
 # ---------------------------------------------------------------------- reading
 class _Tokens:
     """Whitespace/brace tokens with their 1-based line numbers."""

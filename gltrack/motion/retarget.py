@@ -29,7 +29,7 @@ from gltrack.body.dofs import DofSet, make_dofs
 from gltrack.body.kinematics import Kinematics
 from gltrack.body.skeleton import EULER_ORDER, JOINT_NAMES, PARENTS, Skeleton
 
-from .bvh import Bvh, read_bvh, resample
+from .bvh import Bvh, leading_jumps, read_bvh, resample
 from .names import joint_map
 
 log = logging.getLogger(__name__)
@@ -548,7 +548,7 @@ def _frame_slice(frames) -> slice:
 
 
 def load_motion(path, preset: str = "full", fps: float | None = None, frames=None,
-                mapping: dict | None = None, scale=None):
+                mapping: dict | None = None, scale=None, skip_jumps: bool = False):
     """Read a BVH clip and express it on a gltrack body built from it.
 
     Parameters
@@ -561,6 +561,9 @@ def load_motion(path, preset: str = "full", fps: float | None = None, frames=Non
         Source frames to keep (in the file's frame numbering), before resampling.
     mapping : dict, optional, joint-name overrides
     scale : None, "auto" or float, see :func:`gltrack.motion.bvh.read_bvh`
+    skip_jumps : bool
+        Leave out leading frames of the selection that are discontinuities (CMU clips open
+        with a T-pose frame; :func:`gltrack.motion.bvh.leading_jumps`), with a logged warning.
 
     Returns
     -------
@@ -571,6 +574,19 @@ def load_motion(path, preset: str = "full", fps: float | None = None, frames=Non
     """
     bvh = read_bvh(path, scale=scale)
     sl = _frame_slice(frames)
+    if skip_jumps:
+        first, last, step = sl.indices(bvh.n_frames)
+        if step == 1 and last > first:
+            n_skip, jump, typical = leading_jumps(bvh, first, last)
+            if n_skip:
+                ratio = f"{jump / typical:.0f}x" if typical > 0 else "far above"
+                log.warning("%s: skipped source frame%s %s (a discontinuity: a %.2f m joint jump "
+                            "to the next frame, %s the clip's median per frame; e.g. a "
+                            "T-pose frame)", path, "s" if n_skip > 1 else "",
+                            f"{first}..{first + n_skip - 1}" if n_skip > 1 else first,
+                            jump, ratio)
+                sl = slice(first + n_skip, last)
+                frames = sl
     if frames is not None:
         bvh = bvh.select_frames(sl)
         if bvh.n_frames == 0:

@@ -265,7 +265,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     opts = m.options.from_dict(options, where=f"options for {method}")
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
-        raise ValueError(f"frames {start}:{stop} outside the dataset's 0:{ds.frames}")
+        raise ValueError(f"{ds.path}: frames {start}:{stop} (--frames) outside the dataset's "
+                         f"0:{ds.frames}")
     ctx = ctx or shared_context()
     if resume and body == "estimate" and (Path(out) / BODY).is_file():
         # the body estimated when the run began, not a new estimate
