@@ -1,0 +1,155 @@
+"""Refine a dataset's foreground masks with a tracked result (``gltrack refine-masks DS R``).
+
+For every frame the result holds and every colour camera, the body the result recorded
+(``body.json``) is posed at the frame's ``params``, its silhouette is projected into the real
+image, and :func:`gltrack.observe.model_masks.refine_with_model` combines it with the mask the
+dataset has (see that module for why both). The refined masks replace ``camN_mask/``; the masks
+they replaced are moved to ``camN_mask_sequence/`` the first time (a later refinement keeps that
+copy, so every refinement starts from the sequence's masks again, never from its own output).
+Frames the result does not hold keep the sequence's mask. ``meta.json``'s ``"masks"`` gets a
+``"refined"`` record (result, frames, band, reach, seconds).
+
+Everything is written into temporary folders first and swapped in at the end, so an interrupted
+run leaves the dataset as it was (at worst a ``.camN_mask.refining`` folder, removed by the next
+run).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, model_silhouette,
+                                         refine_with_model)
+
+log = logging.getLogger(__name__)
+
+#: where the sequence's own masks are kept once a refinement has replaced them
+SEQUENCE_SUFFIX = "_mask_sequence"
+
+
+def _pixels(camera, metres: float, depth: float) -> int:
+    """``metres`` at ``depth`` in ``camera``'s pixels (at least 1)."""
+    return max(int(round(camera.fx * metres / max(depth, 0.1))), 1)
+
+
+def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: float = REACH_M,
+                         core_m: float = CORE_M, progress: bool = False) -> dict:
+    """Refine the masks of ``dataset`` with the tracked ``result`` (see the module docstring).
+
+    Parameters
+    ----------
+    dataset : path of a multi-view dataset folder with masks (``camN_mask/``)
+    result : path of a results folder tracked on it (``body.json`` and its poses)
+    band_m, reach_m, core_m : float, metres (:mod:`gltrack.observe.model_masks`)
+    progress : bool, show a progress bar
+
+    Returns
+    -------
+    dict, the ``"refined"`` record written to ``meta.json`` (with the foreground fraction of the
+    refined frames per camera, before and after)
+
+    Raises
+    ------
+    ValueError
+        A dataset without colour cameras or masks, or a result without poses for it.
+    """
+    from tqdm import tqdm
+
+    from gltrack.data.dataset import META, Dataset
+    from gltrack.data.results import load_body_record, load_results
+    from gltrack.render.reference import skin_vertices
+
+    t0 = time.perf_counter()
+    ds = Dataset.open(dataset)
+    path = Path(ds.path)
+    cams = [k for k, c in enumerate(ds.cameras) if c.kind == "colour"]
+    if not cams:
+        raise ValueError(f"{path}: no colour cameras: refine-masks is for multi-view datasets")
+    for k in cams:
+        folder = path / f"{ds.cameras[k].name}_mask"
+        if not folder.is_dir():
+            raise ValueError(f"{folder}: no masks to refine (make them with gltrack ingest)")
+    res = load_results(result)
+    body, _ = load_body_record(result)
+    params = np.asarray(res["params"], dtype=np.float64)
+    frames = np.asarray(res.get("frame", np.arange(len(params))), dtype=np.int64)
+    if params.ndim != 2 or params.shape[1] != body.dofs.size:
+        raise ValueError(f"{result}: params {params.shape} do not fit the body of its body.json "
+                         f"({body.dofs.size} DOF)")
+    if len(frames) and (frames.min() < 0 or frames.max() >= ds.frames):
+        raise ValueError(f"{result}: frames {frames.min()}..{frames.max()} are not all in "
+                         f"{path}'s 0..{ds.frames - 1}: a result of another dataset?")
+    by_frame = dict(zip(frames.tolist(), params))
+    tmp = {k: path / f".{ds.cameras[k].name}_mask.refining" for k in cams}
+    for folder in tmp.values():
+        shutil.rmtree(folder, ignore_errors=True)  # debris of an interrupted run
+        folder.mkdir()
+    before, after = np.zeros(len(cams)), np.zeros(len(cams))
+    try:
+        # the sequence's masks are the input every time (never a refinement's output)
+        source = {}
+        for k in cams:
+            name = ds.cameras[k].name
+            kept = path / f"{name}{SEQUENCE_SUFFIX}"
+            source[k] = kept if kept.is_dir() else path / f"{name}_mask"
+        for f in tqdm(range(ds.frames), desc="refine masks", unit="frame", disable=not progress):
+            posed = None
+            if f in by_frame:
+                posed = skin_vertices(body.mesh, body.skinning(by_frame[f][None]))[0]
+            for j, k in enumerate(cams):
+                cam = ds.cameras[k]
+                src = source[k] / f"{f:06d}.png"
+                seq = cv2.imread(str(src), cv2.IMREAD_GRAYSCALE)
+                if seq is None:
+                    raise ValueError(f"{src}: not a readable mask")
+                seq = seq > 127
+                out = seq
+                if posed is not None:
+                    sil = model_silhouette(cam, posed, body.mesh.faces)
+                    depth = float(np.median(cam.depth_of(posed)))
+                    out = refine_with_model(ds.colour(f, k), seq, sil,
+                                            band_px=_pixels(cam, band_m, depth),
+                                            reach_px=_pixels(cam, reach_m, depth),
+                                            core_px=_pixels(cam, core_m, depth))
+                    before[j] += seq.mean()
+                    after[j] += out.mean()
+                if not cv2.imwrite(str(tmp[k] / f"{f:06d}.png"),
+                                   np.where(out, 255, 0).astype(np.uint8)):
+                    raise OSError(f"{tmp[k] / f'{f:06d}.png'}: cannot write the refined mask")
+        # swap in: the sequence's masks are kept once, later refinements replace their output
+        for k in cams:
+            name = ds.cameras[k].name
+            current, kept = path / f"{name}_mask", path / f"{name}{SEQUENCE_SUFFIX}"
+            if kept.is_dir():
+                shutil.rmtree(current)
+            else:
+                os.replace(current, kept)
+            os.replace(tmp[k], current)
+    finally:
+        for folder in tmp.values():
+            shutil.rmtree(folder, ignore_errors=True)
+    n = max(len(by_frame), 1)
+    record = {"result": str(Path(result).resolve()), "frames": len(by_frame),
+              "band_m": band_m, "reach_m": reach_m, "core_m": core_m,
+              "seconds": round(time.perf_counter() - t0, 1),
+              "foreground_fraction_before": [round(float(b / n), 4) for b in before],
+              "foreground_fraction_after": [round(float(a / n), 4) for a in after]}
+    meta_path = path / META
+    meta = json.loads(meta_path.read_text())
+    masks = meta.get("masks") if isinstance(meta.get("masks"), dict) else {}
+    masks["refined"] = record
+    meta["masks"] = masks
+    tmp_meta = meta_path.with_name(f".{META}.tmp")
+    tmp_meta.write_text(json.dumps(meta, indent=2) + "\n")
+    os.replace(tmp_meta, meta_path)
+    log.info("refined the masks of %d frames x %d cameras in %.0f s; foreground fraction %s -> %s",
+             len(by_frame), len(cams), record["seconds"], record["foreground_fraction_before"],
+             record["foreground_fraction_after"])
+    return record
