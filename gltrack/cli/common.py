@@ -58,7 +58,9 @@ def _remove_empty(dirs):
     for d in dirs:  # deepest first
         try:
             d.rmdir()
-        except OSError:
+        except FileNotFoundError:
+            continue
+        except OSError:  # not empty: neither are its parents
             break
 
 

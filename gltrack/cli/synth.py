@@ -115,12 +115,15 @@ def run(args):
     skeleton, dofs, params, _ = load_motion(motion, preset=args.preset, fps=args.fps,
                                             frames=frames)
 
-    from gltrack.data.simulate import synthesize
+    from gltrack.data.simulate import DEFAULT_SIZE, check_synth_memory, synthesize
+    from .common import created_dirs_guard
 
-    path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
-                      size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
-                      distractor=args.distractor, noise=args.noise, subject=subject,
-                      girth_scale=args.girth_scale,
-                      progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
+    check_synth_memory(args.rig, size or DEFAULT_SIZE[args.rig], args.cameras or 4)
+    with created_dirs_guard(out):  # the writer removes its partial folder; this, new parents
+        path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
+                          size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
+                          distractor=args.distractor, noise=args.noise, subject=subject,
+                          girth_scale=args.girth_scale,
+                          progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
     print(f"wrote {path} ({len(params)} frames at {args.fps:g} fps, rig {args.rig})")
     return 0
