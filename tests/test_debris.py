@@ -135,6 +135,12 @@ def test_oserror_names_the_file(tmp_path):
             "except OSError as e:\n    print(e.filename, e.strerror)\n")
     r = _limited(code, 3000, str(tmp_path / "log"))
     assert r.stdout.strip() == f"{tmp_path / 'log' / 'frames.jsonl'} File too large", r
+    # an error without a file name is reported against the command's output
+    from gltrack.cli.common import describe_error
+
+    assert describe_error(OSError(28, "No space left on device"), "o/res") == \
+        "o/res: No space left on device"
+    assert describe_error(OSError(30, "Read-only file system", "o/x")) == "o/x: Read-only file system"
 
 
 def test_synth_refuses_what_does_not_fit_in_memory(tmp_path, monkeypatch, capsys):

@@ -31,7 +31,7 @@ def check_output_file(out, fps, usage_error):
 
 def describe_error(exc: BaseException, out=None) -> str:
     """A one-line message for ``exc``: an OSError as ``path: strerror`` (``[Errno 28]`` alone
-    names no file; one without a file name is said to have happened writing ``out``)."""
+    names no file; one without a file name is reported against ``out``, the command's output)."""
     if isinstance(exc, OSError) and exc.strerror:
         if exc.filename is not None:
             where = str(exc.filename)
@@ -39,7 +39,7 @@ def describe_error(exc: BaseException, out=None) -> str:
                 where += f" -> {exc.filename2}"
             return f"{where}: {exc.strerror}"
         if out is not None:
-            return f"{exc.strerror} (writing {out})"
+            return f"{out}: {exc.strerror}"
         return str(exc.strerror)
     return str(exc)
 

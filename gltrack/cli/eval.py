@@ -144,8 +144,8 @@ def run(args):
         n_truth = None if gt is None else len(gt["joints"])
     else:
         ds = Dataset.open(ds_path)
+        check_result_world(result, ds, args.result)  # the more specific message first
         check_same_dataset(run, ds, args.result, force=args.force)
-        check_result_world(result, ds, args.result)
         n_truth = ds.frames
         gt, fps = groundtruth_in_result_frame(ds.groundtruth(), result), ds.fps
         cam_names = [c.name for c in ds.cameras if c.kind == "colour"]
