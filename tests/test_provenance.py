@@ -118,6 +118,10 @@ def test_resume_refuses_another_dataset_seed_options_or_start(prov, tmp_path, ca
     assert main(TRACK + [str(moved), "--out", str(res), "--resume", "--frames", "0:4"]) == 0
     assert list(load_results(res)["frame"]) == [0, 1, 2, 3]
     assert json.loads((res / "run.json").read_text())["frames"] == [0, 4]
+    # a shorter --frames does not shrink the recorded range
+    assert main(TRACK + [str(moved), "--out", str(res), "--resume", "--frames", "0:2"]) == 0
+    assert json.loads((res / "run.json").read_text())["frames"] == [0, 4]
+    assert len(load_results(res)["frame"]) == 4
 
 
 def test_eval_refuses_another_dataset_and_counts_frames(prov, tmp_path, capsys):

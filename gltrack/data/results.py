@@ -8,7 +8,7 @@ Layout::
                     provenance (:mod:`gltrack.data.provenance`): "dataset" {path, fingerprint,
                     parts, fps, frames, rig}, "frames" [A, B], "options", "seed", "init",
                     "body" {source, preset}, "gltrack_version", "started"; a resumed run
-                    updates "frames" when it extends the range
+                    that extends the range records the new stop frame
       frames.jsonl  one JSON object per finished frame, appended and fsync'ed as it is tracked:
                     {"frame", "params", "joints", "markers", "score", "evaluations", "seconds"}
                     plus, when the tracker gives any, "info": its diagnostics of the frame
@@ -486,8 +486,10 @@ class ResultsWriter:
         elif stored.get("path") != new.get("path"):
             log.warning("%s: the dataset moved from %s to %s (same fingerprint)", path,
                         stored.get("path"), new.get("path"))
-        if run.get("frames") != mine["frames"]:
-            log.info("%s: frame range %s -> %s", path, run.get("frames"), mine["frames"])
+        stored_range = run.get("frames")
+        if isinstance(stored_range, list) and len(stored_range) == 2 and \
+                mine["frames"][1] > stored_range[1]:  # a range is only ever extended
+            log.info("%s: frame range %s -> %s", path, stored_range, mine["frames"])
             run["frames"] = mine["frames"]
             _atomic_write_bytes(path, json.dumps(run, indent=1).encode())
 

@@ -116,7 +116,8 @@ def available_memory():
     """Bytes of memory this process can still use, or None when unknown.
 
     ``MemAvailable`` of ``/proc/meminfo`` (else free physical pages from ``os.sysconf``),
-    lowered to what a cgroup (v2 ``memory.max`` or v1 ``memory.limit_in_bytes``) leaves.
+    lowered to what a cgroup (v2 ``memory.max`` or v1 ``memory.limit_in_bytes``) leaves, its
+    inactive page cache counted as free.
     """
     avail = None
     try:
@@ -132,18 +133,26 @@ def available_memory():
             avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
         except (AttributeError, ValueError, OSError):
             avail = None
-    for limit, usage in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-                         ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-                          "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+    for folder, limit, usage, cache in (
+            ("/sys/fs/cgroup", "memory.max", "memory.current", "inactive_file"),
+            ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes",
+             "total_inactive_file")):
         try:
-            with open(limit) as f:
+            with open(f"{folder}/{limit}") as f:
                 text = f.read().strip()
             if text == "max" or int(text) >= 1 << 60:
                 continue
-            with open(usage) as f:
-                left = int(text) - int(f.read().strip())
+            with open(f"{folder}/{usage}") as f:
+                used = int(f.read().strip())
         except (OSError, ValueError):
             continue
+        try:  # page cache the kernel drops under pressure counts as free (as `docker stats`)
+            with open(f"{folder}/memory.stat") as f:
+                used -= next(int(line.split()[1]) for line in f
+                             if line.split()[0] == cache)
+        except (OSError, ValueError, IndexError, StopIteration):
+            pass
+        left = int(text) - max(used, 0)
         avail = left if avail is None else min(avail, left)
     return None if avail is None else max(int(avail), 0)
 
