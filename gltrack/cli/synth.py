@@ -28,7 +28,9 @@ def add_arguments(p):
                    "(the clip is resampled)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
     p.add_argument("--size", default=None, metavar="WxH",
-                   help="image size (default 176x144 for depth, 320x240 for multiview)")
+                   help="image size (default 176x144 for depth, 320x240 for multiview); "
+                        "synthesis needs about 400 bytes of memory per pixel (depth; multiview "
+                        "230 + 120 per camera) and refuses a size that does not fit")
     p.add_argument("--cameras", type=int, default=None,
                    help="number of colour cameras of the multiview rig (default 4)")
     p.add_argument("--occluder", default="none", choices=list(OCCLUDERS),
