@@ -60,9 +60,9 @@ def main(out=None):
         ("eval", ["eval", str(res), str(ds)]),
         ("render", ["render", str(res), str(ds), "--out", str(out / "overlay.mp4")]),
         ("export trc", ["export", str(res), "--format", "trc", "--dataset", str(ds), "--out",
-                        str(out / "poses.trc")]),
+                        str(out / "poses.trc"), "--overwrite"]),
         ("export bvh", ["export", str(res), "--format", "bvh", "--dataset", str(ds), "--out",
-                        str(out / "poses.bvh")]),
+                        str(out / "poses.bvh"), "--overwrite"]),
     ]
     for name, argv in steps:
         print(f"$ gltrack {' '.join(argv)}", flush=True)

@@ -173,18 +173,18 @@ def test_export_and_render_of_a_dof38_result_need_no_dof(runs, gl_ctx, capsys):
     assert main(["export", str(res), "--format", "json"]) == 0
     doc = json.loads((res / "poses.json").read_text())
     assert doc["dof_preset"] == "38" and len(doc["frames"]) == 2
-    assert main(["export", str(res), "--format", "bvh", "--dof", "38"]) == 0  # agrees: fine
+    assert main(["export", str(res), "--format", "bvh", "--dof", "38", "--overwrite"]) == 0  # agrees
     capsys.readouterr()
-    assert main(["export", str(res), "--format", "bvh", "--dof", "full"]) == 1
+    assert main(["export", str(res), "--format", "bvh", "--dof", "full", "--overwrite"]) == 1
     err = capsys.readouterr().err
     assert "body.json" in err and "'38'" in err and len(err.strip().splitlines()) == 1
     assert main(["-q", "render", str(res), str(runs["ds"]), "--out",
                  str(runs["root"] / "o38.mp4")]) == 0
     # without body.json (results of older versions) the preset must be given again
     (res / "body.json").unlink()
-    assert main(["export", str(res), "--format", "bvh", "--dataset", str(runs["ds"])]) == 1
+    assert main(["export", str(res), "--format", "bvh", "--dataset", str(runs["ds"]), "--overwrite"]) == 1
     assert "'38'" in capsys.readouterr().err
-    assert main(["export", str(res), "--format", "bvh", "--dof", "38"]) == 0
+    assert main(["export", str(res), "--format", "bvh", "--dof", "38", "--overwrite"]) == 0
 
 
 def test_corrupt_or_foreign_body_json_is_refused(runs, tmp_path, capsys):
@@ -195,7 +195,7 @@ def test_corrupt_or_foreign_body_json_is_refused(runs, tmp_path, capsys):
     rec = json.loads((res / "body.json").read_text())
     rec["skeleton"]["offsets"] = "broken"
     (res / "body.json").write_text(json.dumps(rec))
-    for argv in (["export", str(res), "--format", "bvh"], ["eval", str(res), str(runs["ds"])],
+    for argv in (["export", str(res), "--format", "bvh", "--overwrite"], ["eval", str(res), str(runs["ds"])],
                  ["render", str(res), str(runs["ds"]), "--out", str(tmp_path / "o.mp4")]):
         capsys.readouterr()
         assert main(argv) == 1, argv
@@ -204,7 +204,7 @@ def test_corrupt_or_foreign_body_json_is_refused(runs, tmp_path, capsys):
         assert len(err.splitlines()) == 1
     # a valid body.json of another body: the joints are not the result's
     shutil.copy(runs["short"], res / "body.json")
-    for argv in (["export", str(res), "--format", "bvh"], ["eval", str(res), str(runs["ds"])]):
+    for argv in (["export", str(res), "--format", "bvh", "--overwrite"], ["eval", str(res), str(runs["ds"])]):
         capsys.readouterr()
         assert main(argv) == 1, argv
         assert "does not belong to this result" in capsys.readouterr().err

@@ -43,10 +43,11 @@ def runs(tmp_path_factory):
     meta["world"] = WORLD
     (root / "ds_z" / "meta.json").write_text(json.dumps(meta))
     # both runs are interrupted after 2 frames and resumed: --resume keeps working (a resumed
-    # run restarts the tracker's state, so the reference is resumed the same way)
+    # run restarts the tracker's state, so the reference is resumed the same way); without
+    # --frames a resume tracks the range run.json records, so the longer range is given
     for ds, res in (("ds", "res"), ("ds_z", "res_z")):
         _track(root / ds, root / res, "--frames", "0:2")
-        _track(root / ds, root / res, "--resume")
+        _track(root / ds, root / res, "--resume", "--frames", f"0:{N}")
     return {"root": root, "body": body, "P": P, "res": root / "res", "res_z": root / "res_z",
             "ds": root / "ds", "ds_z": root / "ds_z"}
 

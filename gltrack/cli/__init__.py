@@ -15,7 +15,7 @@ from gltrack import __version__
 
 from . import (bench, demo, eval, export, info, ingest, learn, learn_parts, refine_masks, render,
                synth, track)
-from .common import UsageError, check_output_file
+from .common import UsageError, check_output_file, describe_error, sigterm_exits
 
 #: the sub-commands, in the order ``--help`` lists them
 COMMANDS = (info, demo, synth, ingest, track, refine_masks, eval, learn, learn_parts, bench, export,
@@ -92,7 +92,8 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with sigterm_exits():  # `kill PID` cleans up as Ctrl-C does
+            return int(args._run(args) or 0)
     except UsageError as exc:
         if args.debug:
             raise
@@ -101,6 +102,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("gltrack: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # "[Errno 28] No space left on device" alone names no file
+        if args.debug:
+            raise
+        print(f"gltrack {args.command}: error: {describe_error(exc, getattr(args, 'out', None))}",
+              file=sys.stderr)
+        return 1
     except Exception as exc:  # one-line message for users; --debug shows the traceback
         if args.debug:
             raise

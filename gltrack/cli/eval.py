@@ -25,6 +25,63 @@ def add_arguments(p):
                    help="write the metrics (summary and per-frame) as JSON")
     p.add_argument("--csv", metavar="FILE", default=None, help="write the per-frame errors as CSV")
     p.add_argument("--plot", metavar="FILE", default=None, help="plot errors over time (PNG)")
+    p.add_argument("--force", action="store_true",
+                   help="score even when DATASET is not the one RESULT/run.json records (its "
+                        "fingerprint differs) or, for results without that record, when the "
+                        "result does not cover the dataset's frames")
+
+
+def coverage(result, run: dict, n_truth, where: str, force: bool = False) -> dict:
+    """How many frames a result scores of how many it should, refusing a mismatch.
+
+    Parameters
+    ----------
+    result : dict, :func:`gltrack.data.results.load_results`
+    run : dict, the result's ``run.json`` (:func:`gltrack.data.provenance.read_provenance`)
+    n_truth : int or None, frames of the dataset / ground truth compared with
+    where : str, the result's path (messages)
+    force : bool, score a result without a recorded range that does not cover the dataset
+
+    Returns
+    -------
+    dict: ``scored`` (result frames), ``expected`` (frames of the recorded range, else of the
+    dataset), ``dataset_frames``, ``range`` ([A, B] or None: not recorded) and ``text``, the
+    line eval prints
+
+    Raises
+    ------
+    ValueError
+        The recorded range is not inside the dataset, or (without ``force``) an older result
+        covers fewer or more frames than the dataset holds: one line naming both.
+    """
+    import logging
+
+    import numpy as np
+
+    frame = np.asarray(result["frame"])
+    n = int(frame.size)
+    rng = run.get("frames")
+    ok_rng = isinstance(rng, list) and len(rng) == 2 and all(isinstance(v, int) for v in rng)
+    span = f"{int(frame.min())}..{int(frame.max())}" if n else "none"
+    if ok_rng:
+        a, b = rng
+        if n_truth is not None and b > n_truth:
+            raise ValueError(f"{where}: run.json field 'frames' {a}:{b} is not inside the "
+                             f"dataset's {n_truth} frames")
+        expected = b - a
+        text = (f"scored {n} of {expected} frames (the run's range {a}:{b}"
+                + (f" of the dataset's {n_truth}" if n_truth is not None else "") + ")")
+    else:
+        expected = n_truth if n_truth is not None else n
+        text = f"scored {n} of {expected} frames (result frames {span})"
+        if n_truth is not None and n != n_truth:
+            msg = (f"{where}: holds {n} frames ({span}), the dataset {n_truth}, and records no "
+                   "frame range (results of an older run)")
+            if not force:
+                raise ValueError(msg + "; give --force to score those frames")
+            logging.getLogger(__name__).warning("%s; scoring them (--force)", msg)
+    return {"scored": n, "expected": int(expected), "dataset_frames": n_truth,
+            "range": list(rng) if ok_rng else None, "text": text}
 
 
 def _outputs(args):
@@ -72,8 +129,11 @@ def run(args):
     from gltrack.export import body_for_result
     from .common import UsageError
 
+    from gltrack.data.provenance import check_same_dataset, read_provenance
+
     _outputs(args)
     result = load_results(args.result)
+    run = read_provenance(args.result)
     recorded = recorded_body(args.result)
     if recorded is not None:  # refuses a body.json that is not the result's
         body_for_result(result, where=str(recorded[2]), body=recorded[0])
@@ -81,14 +141,18 @@ def run(args):
     fps, truth, cam_names = None, None, None  # truth: the body record of a (synthetic) dataset
     if ds_path.is_file():
         gt = load_groundtruth(ds_path)
+        n_truth = None if gt is None else len(gt["joints"])
     else:
         ds = Dataset.open(ds_path)
-        check_result_world(result, ds, args.result)
+        check_result_world(result, ds, args.result)  # the more specific message first
+        check_same_dataset(run, ds, args.result, force=args.force)
+        n_truth = ds.frames
         gt, fps = groundtruth_in_result_frame(ds.groundtruth(), result), ds.fps
         cam_names = [c.name for c in ds.cameras if c.kind == "colour"]
         if ds.body is not None:
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         ds.close()
+    cover = coverage(result, run, n_truth, args.result, args.force)
     quality = quality_summary(result, frame_infos(args.result), cam_names)
     if gt is None:
         if args.plot:
@@ -96,8 +160,9 @@ def run(args):
                              "(--json and --csv write the quality figures)")
         per = quality.pop("per_frame")
         metrics = {"frames": len(per["frame"]), "quality": quality, "per_frame": per}
+        metrics["coverage"] = {k: v for k, v in cover.items() if k != "text"}
         print(f"{args.result}: method {result['method']!r} on {args.dataset} (no ground truth: "
-              f"quality only, {metrics['frames']} frames)")
+              f"quality only, {metrics['frames']} frames); {cover['text']}")
         print(quality_table(quality))
         if args.json:
             report.write_json(metrics, args.json)
@@ -106,6 +171,7 @@ def run(args):
         return 0
     metrics = M.evaluate(result, gt)
     metrics["quality"] = quality
+    metrics["coverage"] = {k: v for k, v in cover.items() if k != "text"}
     if recorded is not None:
         body, record, _ = recorded
         metrics["body"] = {"source": record.get("source"), "preset": body.dofs.preset,
@@ -114,7 +180,7 @@ def run(args):
             # how far the tracked body is from the one the data was made with
             metrics["body"]["error_vs_dataset"] = {
                 k: v for k, v in body_error(body.skeleton, truth.skeleton).items()}
-    print(f"{args.result}: method {result['method']!r} vs {args.dataset}")
+    print(f"{args.result}: method {result['method']!r} vs {args.dataset}; {cover['text']}")
     print(report.summary_table(metrics))
     print(quality_table(quality))
     if args.json:

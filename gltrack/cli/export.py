@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .common import add_dof_option, check_output_file
+from .common import add_dof_option, atomic_output, check_output_file, refuse_existing
 
 NAME = "export"
 HELP = ("export a results folder as BVH, animated glTF (.glb), OpenSim marker file (.trc) or "
@@ -19,11 +19,16 @@ def add_arguments(p):
                    help="output format (default: from the --out extension)")
     p.add_argument("--dataset", default=None,
                    help="dataset the result was tracked on: its fps, and its body for results "
-                        "without RESULT/body.json (default: the default body at 30 fps)")
+                        "without RESULT/body.json (default: the fps RESULT/run.json records; "
+                        "for older results without one, 30 fps and the default body)")
     p.add_argument("--out", default=None,
                    help="file to write (default: RESULT/poses.<format>)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing output file (e.g. the RESULT/poses.bvh the run "
+                        "wrote); without it an existing file is an error")
     p.add_argument("--fps", type=float, default=None,
-                   help="frames per second (default: the dataset's, else 30)")
+                   help="frames per second (default: the dataset's, as RESULT/run.json "
+                        "records it)")
     add_dof_option(p, help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
     p.add_argument("--points", choices=["markers", "joints"], default="markers",
@@ -60,31 +65,45 @@ def _format_and_out(args):
     else:
         out = Path(args.out)
         check_output_file(out, args.fps, UsageError)
+    if out.is_dir():
+        raise UsageError(f"--out {out} is a folder, not a file")
+    refuse_existing(out, args.overwrite, UsageError)
     return fmt, out
 
 
 def run(args):
+    import logging
+
     from gltrack.data.dataset import Dataset
+    from gltrack.data.provenance import check_same_dataset, read_provenance, recorded_fps
     from gltrack.data.results import load_results, recorded_body
     from gltrack.export import body_for_result, export_result
 
     fmt, out = _format_and_out(args)
     result = load_results(args.result)
     recorded = recorded_body(args.result)
-    body_meta, fps, where = None, _DEFAULT_FPS, "the default body"
+    run_rec = read_provenance(args.result)
+    body_meta, fps, where = None, recorded_fps(run_rec), "the default body"
     if args.dataset:
         from gltrack.data.results import check_result_world
 
         with Dataset.open(args.dataset) as ds:
             check_result_world(result, ds, args.result)
+            check_same_dataset(run_rec, ds, args.result, force=True)  # a warning: fps, body
             body_meta, fps, where = ds.body, ds.fps, str(Path(args.dataset) / "meta.json")
     if args.fps is not None:
         fps = args.fps
+    if fps is None:
+        fps = _DEFAULT_FPS
+        logging.getLogger(__name__).warning(
+            "%s: run.json records no frame rate (results of an older run): assuming %g fps; "
+            "give --dataset or --fps", args.result, fps)
     if recorded is not None:
         body_meta, where = None, str(recorded[2])
     body = body_for_result(result, body_meta, args.dof, where=where,
                            body=recorded[0] if recorded else None)
-    export_result(result, out, fmt, body, fps, points=args.points, axes=args.trc_axes,
-                  units=args.units)
+    with atomic_output(out) as tmp:  # never a half-written file, an old one stays intact
+        export_result(result, tmp, fmt, body, fps, points=args.points, axes=args.trc_axes,
+                      units=args.units)
     print(f"{out}: {fmt}, {len(result['params'])} frames at {fps:g} fps")
     return 0

@@ -73,11 +73,14 @@ def run(args):
 
     from gltrack.data.ingest import ingest
 
+    from .common import created_dirs_guard
+
     t0 = time.perf_counter()
-    r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
-               up=args.up, timestamps=timestamps, overwrite=args.overwrite,
-               progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
-               masks=args.masks)
+    with created_dirs_guard(out):  # the writer removes its partial folder; this, new parents
+        r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
+                   up=args.up, timestamps=timestamps, overwrite=args.overwrite,
+                   progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
+                   masks=args.masks)
     dt = time.perf_counter() - t0
     sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
     up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"

@@ -99,7 +99,7 @@ def format_report(rep: dict, clips: list) -> str:
 def run(args):
     import numpy as np
 
-    from .common import UsageError
+    from .common import UsageError, atomic_output
     from gltrack.motion.behaviour import BehaviourModel
     from gltrack.motion.retarget import load_motion
 
@@ -123,7 +123,8 @@ def run(args):
                                min_count=args.min_count, dof_names=names[6:])
     model.info["preset"] = args.dof
     model.info["clips"] = [str(p) for p, _ in clips]
-    model.save(args.out)
+    with atomic_output(args.out) as tmp:  # a failed write leaves no partial model
+        model.save(tmp)
     print(format_report(model.report(), clips))
     if args.sweep_memory is not None:
         train, held = _split(seqs, args.heldout)

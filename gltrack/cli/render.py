@@ -42,6 +42,10 @@ def run(args):
     cameras = "all" if cams == "all" else [c.strip() for c in cams.split(",") if c.strip()]
     if not cameras:
         raise UsageError("--camera names no camera")
+    from gltrack.data.provenance import check_same_dataset, read_provenance
+
+    if Path(args.dataset).is_dir():  # a warning: the overlay of another dataset is still drawn
+        check_same_dataset(read_provenance(args.result), args.dataset, args.result, force=True)
     quiet = logging.getLogger().getEffectiveLevel() > logging.WARNING
     path = render_overlay(args.result, args.dataset, out, cameras=cameras,
                           max_frames=args.max_frames, progress=not quiet, fps=args.fps,

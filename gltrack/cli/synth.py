@@ -31,7 +31,9 @@ def add_arguments(p):
                    "(the clip is resampled)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random choice")
     p.add_argument("--size", default=None, metavar="WxH",
-                   help="image size (default 176x144 for depth, 320x240 for multiview)")
+                   help="image size (default 176x144 for depth, 320x240 for multiview); "
+                        "synthesis needs about 400 bytes of memory per pixel (depth; multiview "
+                        "230 + 120 per camera) and refuses a size that does not fit")
     p.add_argument("--cameras", type=int, default=None,
                    help="number of colour cameras of the multiview rig (default 4)")
     p.add_argument("--occluder", default="none", choices=list(OCCLUDERS),
@@ -113,12 +115,15 @@ def run(args):
     skeleton, dofs, params, _ = load_motion(motion, preset=args.dof, fps=args.fps,
                                             frames=frames, skip_jumps=True)
 
-    from gltrack.data.simulate import synthesize
+    from gltrack.data.simulate import DEFAULT_SIZE, check_synth_memory, synthesize
+    from .common import created_dirs_guard
 
-    path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
-                      size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
-                      distractor=args.distractor, noise=args.noise, subject=subject,
-                      girth_scale=args.girth_scale,
-                      progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
+    check_synth_memory(args.rig, size or DEFAULT_SIZE[args.rig], args.cameras or 4)
+    with created_dirs_guard(out):  # the writer removes its partial folder; this, new parents
+        path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
+                          size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
+                          distractor=args.distractor, noise=args.noise, subject=subject,
+                          girth_scale=args.girth_scale,
+                          progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
     print(f"wrote {path} ({len(params)} frames at {args.fps:g} fps, rig {args.rig})")
     return 0

@@ -50,7 +50,13 @@ def add_arguments(p):
                    help="re-start a tracker whose fit stays worse than its lost threshold for N "
                         "frames in a row (the current track and the automatic start are each "
                         "tracked a few frames, the better is kept); 0 never re-starts")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run in --out: the dataset (its fingerprint in "
+                        "RESULT/run.json), first frame, seed and options must be the run's; "
+                        "without --frames the run's own range is tracked")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: accept a dataset whose files differ from those the run "
+                        "began on (e.g. a repaired frame)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing results folder")
     p.add_argument("--seed", type=int, default=0, help="random seed (particle filters)")
 
@@ -142,7 +148,7 @@ def check_input_files(args) -> None:
 
 
 def run(args):
-    from .common import UsageError
+    from .common import UsageError, results_guard
     from gltrack.track.runner import track
 
     from gltrack.track.registry import options_class
@@ -154,10 +160,16 @@ def run(args):
     check_input_files(args)
     if args.lost_frames < 0:
         raise UsageError(f"--lost-frames must be at least 0, got {args.lost_frames}")
-    timing = track(args.dataset, args.method, args.out, options=options,
-                   init=args.init, resume=args.resume, overwrite=args.overwrite,
-                   frames=_frames(args.frames, UsageError), preset=args.dof, seed=args.seed,
-                   progress=not args.quiet, body=args.body, lost_frames=args.lost_frames)
+    if args.force and not args.resume:
+        raise UsageError("--force applies to --resume only")
+    frames = _frames(args.frames, UsageError)
+    # a run failing before its first frame leaves no debris; one failing later says what it kept
+    with results_guard(args.out, resume=args.resume):
+        timing = track(args.dataset, args.method, args.out, options=options,
+                       init=args.init, resume=args.resume, overwrite=args.overwrite,
+                       frames=frames, preset=args.dof, seed=args.seed,
+                       progress=not args.quiet, body=args.body, lost_frames=args.lost_frames,
+                       force=args.force)
     fps = timing.get("fps")
     print(f"tracked {timing['frames']} frames with {args.method} in {timing['seconds']:.1f} s "
           f"({fps:.2f} frames/s, {timing['evaluations']} candidate evaluations) -> {args.out}"

@@ -34,6 +34,7 @@ import re
 import shutil
 import tempfile
 import warnings
+from glob import escape as glob_escape
 from pathlib import Path
 
 import cv2
@@ -606,11 +607,46 @@ class Dataset:
                 f"fps={self.fps:g}, cameras={[c.name for c in self.cameras]})")
 
 
+def current_umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux allows)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: read it by setting it, and put it back at once
+    os.umask(mask)
+    return mask
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def _remove_stale_partials(path: Path):
+    """Delete the hidden ``.NAME.partial-PID-*`` folders that a writer killed outright (kill
+    -9, the kernel's out-of-memory killer) left beside ``path``: those whose process is gone."""
+    for d in path.parent.glob(f".{glob_escape(path.name)}.partial-*"):
+        pid = d.name[len(f".{path.name}.partial-"):].split("-")[0]
+        if d.is_dir() and pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+            log.warning("removing %s, the partial dataset of a run that was killed", d)
+            shutil.rmtree(d, ignore_errors=True)
+
+
 class DatasetWriter:
     """Write a dataset folder atomically.
 
-    Everything goes to a hidden sibling ``.NAME.partial-XXXX``; :meth:`close` (or leaving a
-    ``with`` block normally) checks that every camera has the same frames ``0..N-1``, writes
+    Everything goes to a hidden sibling ``.NAME.partial-PID-XXXX`` (mode from the umask; one
+    left by a process killed outright is removed by the next writer of NAME); :meth:`close`
+    (or leaving a ``with`` block normally) checks that every camera has the same frames ``0..N-1``, writes
     ``meta.json`` and ``calibration.json`` and renames the folder into place. An exception inside
     the ``with`` block, or :meth:`abort`, deletes the partial folder, so no folder at ``path``
     ever claims to be complete when it is not.
@@ -657,8 +693,11 @@ class DatasetWriter:
                                                      or any(self.path.iterdir())):
             raise FileExistsError(f"{self.path}: exists and is not empty (use overwrite)")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.partial-",
+        _remove_stale_partials(self.path)
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.partial-{os.getpid()}-",
                                          dir=self.path.parent))
+        # mkdtemp makes drwx------; the dataset gets the mode any folder of the user gets
+        os.chmod(self.tmp, 0o777 & ~current_umask())
         self._written = {}  # (camera name, role) -> set of frames
         self._closed = False
 

@@ -4,7 +4,11 @@ Layout::
 
     RESULT/
       run.json      {"format": "gltrack-results", "version": 1, "method": M, "joint_names": [...],
-                     "marker_names": [...] | null}   written once, when the run starts
+                     "marker_names": [...] | null}   written when the run starts, with its
+                    provenance (:mod:`gltrack.data.provenance`): "dataset" {path, fingerprint,
+                    parts, fps, frames, rig}, "frames" [A, B], "options", "seed", "init",
+                    "body" {source, preset}, "gltrack_version", "started"; a resumed run
+                    that extends the range records the new stop frame
       frames.jsonl  one JSON object per finished frame, appended and fsync'ed as it is tracked:
                     {"frame", "params", "joints", "markers", "score", "evaluations", "seconds"}
                     plus, when the tracker gives any, "info": its diagnostics of the frame
@@ -97,26 +101,60 @@ def _fsync_dir(path):
         os.close(fd)
 
 
-def _atomic_write_bytes(path, data):
+def _named_oserror(exc: OSError, path) -> OSError:
+    """``exc`` with ``path`` as its file name when it has none (``[Errno 28]`` alone names no
+    file; the CLI prints ``path: strerror``)."""
+    if exc.filename is None and exc.errno is not None:
+        return type(exc)(exc.errno, exc.strerror, str(path))
+    return exc
+
+
+def _atomic_write(path, write):
+    """Write ``path`` through a hidden temporary sibling and an atomic rename: ``write(f)``
+    fills the open binary file. On any failure the temporary file is removed and an OSError
+    names ``path``."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise _named_oserror(exc, path) from exc
+        raise
     _fsync_dir(path.parent)
+
+
+def _atomic_write_bytes(path, data):
+    _atomic_write(path, lambda f: f.write(data))
 
 
 def _atomic_savez(path, **arrays):
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.npz")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+
+
+def finished_frame_count(out) -> int:
+    """How many frames a results folder holds: the complete lines of ``frames.jsonl`` (0 when
+    it is missing), or, without it, the frames of ``poses.npz`` (-1: unreadable)."""
+    out = Path(out)
+    try:
+        with open(out / FRAMES, "rb") as f:
+            return sum(block.count(b"\n") for block in iter(lambda: f.read(1 << 20), b""))
+    except FileNotFoundError:
+        pass
+    if not (out / POSES).exists():
+        return 0
+    try:
+        return int(len(load_results(out)["params"]))
+    except (ValueError, OSError):
+        return -1
 
 
 def _read_json(path, missing: str):
@@ -326,17 +364,29 @@ class ResultsWriter:
         the user's frame and the record is kept in ``run.json`` and ``poses.npz`` (see "Frame
         of the coordinates" above); None (default): they are written as given and nothing is
         recorded. On resume it must equal the stored one.
+    provenance : dict, optional
+        What the run was made from (:func:`gltrack.data.provenance.run_provenance`: dataset
+        path, fingerprint, fps and frame count, the frame range, options, seed, init, body
+        source and preset, gltrack version), added to ``run.json``. On resume it is compared
+        with the stored record (:func:`gltrack.data.provenance.resume_problem`): another
+        dataset, first frame, seed or options are refused; a run stored without it (older
+        results) gets it, with a warning that nothing could be checked.
+    force : bool
+        On resume, accept a dataset whose fingerprint differs from the stored one (e.g. after
+        repairing a damaged frame file), with a warning.
 
     Raises
     ------
     FileExistsError
-        ``out`` already holds a run and neither ``resume`` nor ``overwrite`` is set.
+        ``out`` already holds a run with finished frames and neither ``resume`` nor
+        ``overwrite`` is set. (A run that left no finished frame, e.g. one killed before its
+        first, is replaced with a warning.)
     ValueError
         The stored run is damaged or does not match (on resume).
     """
 
     def __init__(self, out, method, joint_names, marker_names=None, resume=False, overwrite=False,
-                 body=None, world=None):
+                 body=None, world=None, provenance=None, force=False):
         if resume and overwrite:
             raise ValueError("resume and overwrite exclude each other")
         from gltrack.data.world import world_record
@@ -351,20 +401,27 @@ class ResultsWriter:
         self._records = []
         self._done = set()
         self._n_params = None
+        self.provenance = None if provenance is None else json.loads(json.dumps(provenance))
+        self.force = bool(force)
         self.out.mkdir(parents=True, exist_ok=True)
         existing = [n for n in (RUN, FRAMES, BODY) + _DERIVED if (self.out / n).exists()]
         if existing and resume:
             self._resume(body)
-        elif existing and not overwrite:
+        elif existing and not overwrite and finished_frame_count(self.out) != 0:
             raise FileExistsError(f"{self.out} already holds results ({', '.join(existing)}); "
                                   "resume or overwrite")
         else:
+            if existing and not overwrite:
+                log.warning("%s: replacing the files of a run that finished no frame (%s)",
+                            self.out, ", ".join(existing))
             for name in existing:
                 (self.out / name).unlink()
             run = {"format": FORMAT, "version": VERSION, "method": self.method,
                    "joint_names": self.joint_names, "marker_names": self.marker_names}
             if self.world is not None:
                 run["world"] = self.world
+            if self.provenance is not None:
+                run.update({k: v for k, v in self.provenance.items() if k not in run})
             _atomic_write_bytes(self.out / RUN, json.dumps(run, indent=1).encode())
             if body is not None:
                 _write_body(self.out, body)
@@ -383,6 +440,8 @@ class ResultsWriter:
         if not same_world(run.get("world"), self.world):
             raise ValueError(f"{self.out / RUN}: field 'world' is {run.get('world')!r}, this run's "
                              f"dataset has {self.world!r}; cannot resume in another frame")
+        if self.provenance is not None:
+            self._check_provenance(run)
         if body is not None:
             self._check_body(body)
         records, good = read_frames(self.out, len(self.joint_names), self._n_markers)
@@ -404,6 +463,35 @@ class ResultsWriter:
             if (self.out / name).exists():
                 (self.out / name).unlink()
         log.info("resuming %s: %d frames done", self.out, len(records))
+
+    def _check_provenance(self, run):
+        """Refuse to resume onto another dataset, first frame, seed or options; record the
+        provenance of a run stored without one; note a moved dataset or a new stop frame."""
+        from gltrack.data.provenance import resume_problem
+
+        path, mine = self.out / RUN, self.provenance
+        if not isinstance(run.get("dataset"), dict):
+            log.warning("%s: records no dataset (results of an older run): cannot check that "
+                        "this is the dataset it began on; recording this run's", path)
+            run.update({k: v for k, v in mine.items() if k not in run})
+            _atomic_write_bytes(path, json.dumps(run, indent=1).encode())
+            return
+        problem = resume_problem(run, mine, force=self.force)
+        if problem:
+            raise ValueError(f"{path}: {problem}; cannot resume (--overwrite starts afresh)")
+        stored, new = run["dataset"], mine["dataset"]
+        if stored.get("fingerprint") != new.get("fingerprint"):
+            log.warning("%s: the dataset's files differ from those the run began on; resuming "
+                        "anyway (force)", path)
+        elif stored.get("path") != new.get("path"):
+            log.warning("%s: the dataset moved from %s to %s (same fingerprint)", path,
+                        stored.get("path"), new.get("path"))
+        stored_range = run.get("frames")
+        if isinstance(stored_range, list) and len(stored_range) == 2 and \
+                mine["frames"][1] > stored_range[1]:  # a range is only ever extended
+            log.info("%s: frame range %s -> %s", path, stored_range, mine["frames"])
+            run["frames"] = mine["frames"]
+            _atomic_write_bytes(path, json.dumps(run, indent=1).encode())
 
     def _check_body(self, body):
         """Refuse to resume with a body other than the stored one; store it if none is."""
@@ -476,9 +564,12 @@ class ResultsWriter:
         line = json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v)
                            for k, v in rec.items()}, separators=(",", ":"))
         # One write of the whole line: a crash leaves at most a torn last line, never a mix.
-        self._f.write(line.encode() + b"\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
+        try:
+            self._f.write(line.encode() + b"\n")
+            self._f.flush()
+            os.fsync(self._f.fileno())
+        except OSError as exc:
+            raise _named_oserror(exc, self.out / FRAMES) from exc
         self._records.append(rec)
         self._done.add(frame)
         self._n_params = params.size

@@ -53,6 +53,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import sys
 import time
 import warnings
@@ -80,6 +81,100 @@ N_BACKGROUND = {"depth": 9, "multiview": 12}
 ZNEAR, ZFAR = 0.05, 30.0
 _STREAMS = {"layout": 1, "room": 2, "clothes": 3, "sensor": 4, "background": 5}
 _UP = np.array([0.0, 1.0, 0.0])
+
+#: peak memory of :func:`synthesize`: BASE + pixels per image x (SHARED + PER_CAMERA x cameras)
+#: bytes, measured as the peak RSS of ``gltrack synth`` (2 frames; the peak does not grow with
+#: the frame count: frames are written as they are made) at 64x64 .. 2048x2048 (depth: 236,
+#: 338, 646, 1817 MB at 64, 512, 1024, 2048 px square, i.e. 380..400 bytes per pixel) and
+#: multiview 256..1536 px square with 2 and 4 cameras (444 bytes per pixel with 2 cameras,
+#: 114 more per pixel for each further camera), rounded up
+SYNTH_MEMORY = {"base": 300e6,
+                "depth": {"shared": 410.0, "per_camera": 0.0},
+                "multiview": {"shared": 230.0, "per_camera": 120.0}}
+
+
+def synth_memory_estimate(rig: str, size, n_cameras: int = 4) -> float:
+    """Bytes of memory :func:`synthesize` needs at its peak (see :data:`SYNTH_MEMORY`).
+
+    Parameters
+    ----------
+    rig : {"depth", "multiview"}
+    size : (W, H) pixels of each image
+    n_cameras : int, cameras of the multiview rig (the depth rig has one)
+
+    Returns
+    -------
+    float, bytes
+    """
+    c = SYNTH_MEMORY[rig]
+    cams = 1 if rig == "depth" else int(n_cameras)
+    return SYNTH_MEMORY["base"] + int(size[0]) * int(size[1]) * (c["shared"]
+                                                                  + c["per_camera"] * cams)
+
+
+def available_memory():
+    """Bytes of memory this process can still use, or None when unknown.
+
+    ``MemAvailable`` of ``/proc/meminfo`` (else free physical pages from ``os.sysconf``),
+    lowered to what a cgroup (v2 ``memory.max`` or v1 ``memory.limit_in_bytes``) leaves, its
+    inactive page cache counted as free.
+    """
+    avail = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if avail is None:
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (AttributeError, ValueError, OSError):
+            avail = None
+    for folder, limit, usage, cache in (
+            ("/sys/fs/cgroup", "memory.max", "memory.current", "inactive_file"),
+            ("/sys/fs/cgroup/memory", "memory.limit_in_bytes", "memory.usage_in_bytes",
+             "total_inactive_file")):
+        try:
+            with open(f"{folder}/{limit}") as f:
+                text = f.read().strip()
+            if text == "max" or int(text) >= 1 << 60:
+                continue
+            with open(f"{folder}/{usage}") as f:
+                used = int(f.read().strip())
+        except (OSError, ValueError):
+            continue
+        try:  # page cache the kernel drops under pressure counts as free (as `docker stats`)
+            with open(f"{folder}/memory.stat") as f:
+                used -= next(int(line.split()[1]) for line in f
+                             if line.split()[0] == cache)
+        except (OSError, ValueError, IndexError, StopIteration):
+            pass
+        left = int(text) - max(used, 0)
+        avail = left if avail is None else min(avail, left)
+    return None if avail is None else max(int(avail), 0)
+
+
+def check_synth_memory(rig: str, size, n_cameras: int = 4):
+    """Refuse a synthesis that would not fit in the memory left (before anything is written).
+
+    Raises
+    ------
+    MemoryError
+        One line naming the size, the estimate and the memory available.
+    """
+    need = synth_memory_estimate(rig, size, n_cameras)
+    have = available_memory()
+    if have is None:
+        log.debug("available memory unknown; synthesis needs about %.1f GB", need / 1e9)
+        return
+    if need > have:
+        cams = "" if rig == "depth" else f" with {n_cameras} cameras"
+        raise MemoryError(f"a {rig} dataset of {size[0]}x{size[1]} images{cams} needs about "
+                          f"{need / 1e9:.1f} GB of memory, {have / 1e9:.1f} GB is available; "
+                          "use a smaller size (or fewer cameras)")
 
 
 def _rng(seed: int, stream: str, *more: int) -> np.random.Generator:
@@ -527,6 +622,8 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
         ``subject`` does not exist.
     FileExistsError
         ``out`` exists, is not empty and ``overwrite`` is False.
+    MemoryError
+        The images are too large for the memory available (:func:`check_synth_memory`).
     """
     from tqdm import tqdm
 
@@ -536,6 +633,7 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     distractor = distractor or "none"
     size = tuple(size) if size is not None else DEFAULT_SIZE.get(rig, (0, 0))
     _check_args(params, dofs, fps, rig, seed, size, n_cameras, occluder, distractor, noise)
+    check_synth_memory(rig, size, n_cameras)
     t0 = time.perf_counter()
     custom_mesh = mesh is not None
     body = BodyModel.build(skeleton, dofs.preset, lod, mesh=mesh)

@@ -10,6 +10,7 @@ the benches inject faults this way (``gltrack.bench.faults``) without the tracke
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gltrack.data.dataset import Dataset
+from gltrack.data.provenance import recorded_range, run_provenance
 from gltrack.data.results import BODY, ResultsWriter, load_body_record
 from gltrack.export.bvh import write_params_bvh
 
@@ -217,7 +219,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
           hooks=(), body: str = "estimate", max_search: int = 30,
-          decide_frames: int = 10, lost_frames: int = 3, check_start: bool = True) -> dict:
+          decide_frames: int = 10, lost_frames: int = 3, check_start: bool = True,
+          force: bool = False) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
@@ -249,6 +252,9 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         ``decide_frames`` frames and the best is kept (:func:`_restart`); 0 never re-starts
     check_start : with a pose file as ``init``, also try the automatic start (False: trust the
         file, e.g. a bench's true first pose in another DOF preset)
+    force : with ``resume``, accept a dataset whose fingerprint differs from the one recorded
+        in ``out/run.json`` (:mod:`gltrack.data.provenance`; another dataset, first frame, seed
+        or options are refused, and a resume without ``frames`` tracks the recorded range)
 
     Returns
     -------
@@ -263,6 +269,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     if ds.rig != m.rig:
         raise ValueError(f"{ds.path}: method {method!r} needs a {m.rig} dataset, this one is {ds.rig!r}")
     opts = m.options.from_dict(options, where=f"options for {method}")
+    if resume and frames is None:  # the range the run was started with
+        frames = recorded_range(out, ds.frames)
     start, stop = (0, ds.frames) if frames is None else frames
     if not (0 <= start < stop <= ds.frames):
         raise ValueError(f"{ds.path}: frames {start}:{stop} (--frames) outside the dataset's "
@@ -278,7 +286,9 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     tracker = m.tracker(ds, body, ctx, opts, rng)
     writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
                            resume=resume, overwrite=overwrite, body=body_rec,
-                           world=ds.meta.get("world"))  # joints/markers saved in the user's frame
+                           world=ds.meta.get("world"),  # joints/markers saved in the user's frame
+                           provenance=run_provenance(ds, dataclasses.asdict(opts), seed, init,
+                                                     (start, stop), body_rec), force=force)
     decided = {}  # frames already tracked while deciding between start hypotheses
     try:
         done = writer.done_frames
