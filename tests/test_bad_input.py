@@ -24,7 +24,6 @@ from gltrack.motion.bvh import write_bvh
 from trackdata import make_depth_dataset, smooth_motion
 
 REPO = Path(__file__).resolve().parents[1]
-PROV = pytest.mark.xfail(strict=False, reason="prov branch (run.json, resume checks, debris)")
 
 # Daz-style joint names, which the BVH retargeter recognises (as in test_synth).
 _DAZ = {"pelvis": "hip", "spine_lower": "abdomen", "spine_upper": "chest", "neck": "neck",
@@ -287,7 +286,7 @@ CASES = {
         lambda b, t: ["export", str(b / "res"), "--out", str(t / "a.bvh"), "--dataset",
                       str(t / "nods")], "nods", "a.bvh", None),
     "export-would-overwrite-poses-bvh": (
-        lambda b, t: ["export", str(_copy(b, t, "res")), "--format", "bvh"], "poses.bvh", None,
+        lambda b, t: ["export", str(_with_bvh(b, t)), "--format", "bvh"], "poses.bvh", None,
         None),
     "export-frames-jsonl-corrupt": (
         lambda b, t: ["export", str(_res_only_frames(b, t)), "--out", str(t / "a.json")],
@@ -352,9 +351,12 @@ CASES = {
                                         "out", "-v"], "-q", "out", None),
 }
 
-#: cases another branch fixes: expected failures here until it is merged
-XFAIL = {k: PROV for k in ("track-init-wrong-shape-leaves-nothing",
-                           "eval-dataset-longer-than-result", "export-would-overwrite-poses-bvh")}
+
+def _with_bvh(base, tmp):
+    """A copy of the results folder with the poses.bvh that ``track`` writes."""
+    res = _copy(base, tmp, "res")
+    _write(res / "poses.bvh", "HIERARCHY\n")
+    return res
 
 
 def _ds_without(base, tmp, name):
@@ -397,7 +399,7 @@ def _res_only_frames(base, tmp):
 
 
 def _params():
-    return [pytest.param(k, marks=XFAIL[k]) if k in XFAIL else k for k in CASES]
+    return list(CASES)
 
 
 def _check(rc, err, records, mention, debris, tmp):

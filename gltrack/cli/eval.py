@@ -31,7 +31,8 @@ def add_arguments(p):
                         "result does not cover the dataset's frames")
 
 
-def coverage(result, run: dict, n_truth, where: str, force: bool = False) -> dict:
+def coverage(result, run: dict, n_truth, where: str, force: bool = False,
+             dataset: str = "the dataset") -> dict:
     """How many frames a result scores of how many it should, refusing a mismatch.
 
     Parameters
@@ -41,6 +42,7 @@ def coverage(result, run: dict, n_truth, where: str, force: bool = False) -> dic
     n_truth : int or None, frames of the dataset / ground truth compared with
     where : str, the result's path (messages)
     force : bool, score a result without a recorded range that does not cover the dataset
+    dataset : str, the dataset's path (messages)
 
     Returns
     -------
@@ -67,7 +69,7 @@ def coverage(result, run: dict, n_truth, where: str, force: bool = False) -> dic
         a, b = rng
         if n_truth is not None and b > n_truth:
             raise ValueError(f"{where}: run.json field 'frames' {a}:{b} is not inside the "
-                             f"dataset's {n_truth} frames")
+                             f"{n_truth} frames of {dataset}")
         expected = b - a
         text = (f"scored {n} of {expected} frames (the run's range {a}:{b}"
                 + (f" of the dataset's {n_truth}" if n_truth is not None else "") + ")")
@@ -75,7 +77,7 @@ def coverage(result, run: dict, n_truth, where: str, force: bool = False) -> dic
         expected = n_truth if n_truth is not None else n
         text = f"scored {n} of {expected} frames (result frames {span})"
         if n_truth is not None and n != n_truth:
-            msg = (f"{where}: holds {n} frames ({span}), the dataset {n_truth}, and records no "
+            msg = (f"{where}: holds {n} frames ({span}), {dataset} {n_truth}, and records no "
                    "frame range (results of an older run)")
             if not force:
                 raise ValueError(msg + "; give --force to score those frames")
@@ -152,7 +154,7 @@ def run(args):
         if ds.body is not None:
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         ds.close()
-    cover = coverage(result, run, n_truth, args.result, args.force)
+    cover = coverage(result, run, n_truth, args.result, args.force, dataset=args.dataset)
     quality = quality_summary(result, frame_infos(args.result), cam_names)
     if gt is None:
         if args.plot:
