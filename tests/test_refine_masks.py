@@ -106,12 +106,17 @@ def test_refine_masks_brings_back_the_still_torso_and_drops_the_ghost(spoilt, tm
     np.testing.assert_array_equal(cv2.imread(str(kept), 0) > 127, seq[0][0])
     rec = json.loads((path / "meta.json").read_text())["masks"]["refined"]
     assert rec["frames"] == N and rec["result"] == str(res.resolve())
-    # a second refinement starts again from the sequence's masks: the same output
+    # a second refinement starts again from the sequence's masks: the same output; with
+    # --frames, the frames outside get the sequence's masks back
     first = [ds.mask(f, 1) for f in range(N)]
     assert main(["-q", "refine-masks", str(path), str(res)]) == 0
     ds = Dataset.open(path)
     for f in range(N):
         np.testing.assert_array_equal(ds.mask(f, 1), first[f])
+    assert main(["-q", "refine-masks", str(path), str(res), "--frames", "1:3"]) == 0
+    ds = Dataset.open(path)
+    np.testing.assert_array_equal(ds.mask(0, 1), seq[0][1])
+    np.testing.assert_array_equal(ds.mask(2, 1), first[2])
     assert not list(path.glob(".*refining*"))
 
 
@@ -131,3 +136,6 @@ def test_refine_masks_bad_input(spoilt, tmp_path, capsys):
     assert "nothing" in capsys.readouterr().err
     assert main(["refine-masks", str(path), str(tmp_path), "--band", "0"]) == 2
     assert "--band" in capsys.readouterr().err
+    res = _result(path, body, P, tmp_path / "res")
+    assert main(["refine-masks", str(path), str(res), "--frames", "5:9"]) == 1
+    assert "no frame in 5:9" in capsys.readouterr().err

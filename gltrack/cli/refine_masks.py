@@ -19,18 +19,22 @@ def add_arguments(p):
     p.add_argument("--reach", type=float, default=REACH_M, metavar="M",
                    help="metres around the model's silhouette within which the sequence's own "
                         "mask is kept (a hand the model missed); farther foreground is dropped")
+    p.add_argument("--frames", default=None, metavar="A:B",
+                   help="refine only the result's frames A (inclusive) to B (exclusive): the "
+                        "stretch where its overlay shows the model on the person; default: all")
 
 
 def run(args) -> int:
     from gltrack.data.refine_masks import refine_dataset_masks
 
-    from .common import UsageError
+    from .common import UsageError, parse_frames
 
     for flag, v in (("--band", args.band), ("--reach", args.reach)):
         if not 0.0 < v <= 2.0:
             raise UsageError(f"{flag} must be in (0, 2] metres, got {v:g}")
+    frames = parse_frames(args.frames) if args.frames is not None else None
     rec = refine_dataset_masks(args.dataset, args.result, band_m=args.band, reach_m=args.reach,
-                               progress=not args.quiet)
+                               frames=frames, progress=not args.quiet)
     if not args.quiet:
         print(f"{args.dataset}: masks of {rec['frames']} frames refined with {args.result} in "
               f"{rec['seconds']:.0f} s; foreground fraction per camera "

@@ -40,7 +40,7 @@ def _pixels(camera, metres: float, depth: float) -> int:
 
 
 def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: float = REACH_M,
-                         core_m: float = CORE_M, progress: bool = False) -> dict:
+                         core_m: float = CORE_M, frames=None, progress: bool = False) -> dict:
     """Refine the masks of ``dataset`` with the tracked ``result`` (see the module docstring).
 
     Parameters
@@ -48,6 +48,8 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
     dataset : path of a multi-view dataset folder with masks (``camN_mask/``)
     result : path of a results folder tracked on it (``body.json`` and its poses)
     band_m, reach_m, core_m : float, metres (:mod:`gltrack.observe.model_masks`)
+    frames : (A, B), optional: refine only frames A (inclusive) to B (exclusive) of the result
+        (the stretch where its overlay shows the model on the person); default all it holds
     progress : bool, show a progress bar
 
     Returns
@@ -67,6 +69,7 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
     from gltrack.render.reference import skin_vertices
 
     t0 = time.perf_counter()
+    frames_wanted = frames
     ds = Dataset.open(dataset)
     path = Path(ds.path)
     cams = [k for k, c in enumerate(ds.cameras) if c.kind == "colour"]
@@ -87,6 +90,12 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
         raise ValueError(f"{result}: frames {frames.min()}..{frames.max()} are not all in "
                          f"{path}'s 0..{ds.frames - 1}: a result of another dataset?")
     by_frame = dict(zip(frames.tolist(), params))
+    if frames_wanted is not None:
+        a, b = frames_wanted
+        by_frame = {f: p for f, p in by_frame.items() if a <= f < b}
+        if not by_frame:
+            raise ValueError(f"{result}: no frame in {a}:{b} (it holds {frames.min()}.."
+                             f"{frames.max()})")
     tmp = {k: path / f".{ds.cameras[k].name}_mask.refining" for k in cams}
     for folder in tmp.values():
         shutil.rmtree(folder, ignore_errors=True)  # debris of an interrupted run
