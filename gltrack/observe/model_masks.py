@@ -37,9 +37,11 @@ SUPER = 4
 #: metres around the model's silhouette where GrabCut decides (beyond: sure background). About
 #: a limb's width: the model's limbs are within that of the person's where the track is good.
 BAND_M = 0.15
-#: metres the sequence mask is kept within, around the model's silhouette: about a forearm's
-#: length, so a hand the model missed stays while the ghost and other people go.
-REACH_M = 0.3
+#: metres the sequence mask is kept within, around the model's silhouette: an arm's length
+#: (shoulder to fingertip is about 0.35 of the stature), so a raised hand stays even where the
+#: model's arm hangs down (a track that does not follow the arms at all, as on the caliscope
+#: take, whose hands a 0.3 m reach dropped), while the ghost and other people farther away go.
+REACH_M = 0.6
 #: metres by which the silhouette is eroded before it counts as sure foreground (where the
 #: sequence mask agrees): the model's own fitting error at a limb's edge.
 CORE_M = 0.04
