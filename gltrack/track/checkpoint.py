@@ -14,10 +14,13 @@ each array is ``{"__array__": "aK"}``. Top-level keys of the JSON: ``format``
 (:data:`FORMAT`), ``method``, ``frame`` (the last finished frame), ``params`` (its pose, to
 check it against ``frames.jsonl``), ``tracker``, ``watch``, ``decided``.
 
-On resume the checkpoint is used only when its method and frame match the last complete frame
-line and its pose is that line's pose bit for bit; otherwise (no checkpoint: a run of an older
-version, a method that cannot checkpoint, a kill between the frame line and the checkpoint) the
-tracker re-starts from the last pose with a warning, as before.
+On resume the checkpoint is used when its method matches and its frame is a finished frame
+whose line holds its pose bit for bit. It is normally the last finished frame; a kill between a
+frame's line and its checkpoint leaves the checkpoint one frame behind, and the runner then
+tracks the frames after it again without writing them (:func:`replayed`) to reach the state
+after the last line. Otherwise (no checkpoint: a run of an older version or a method that
+cannot checkpoint; one of another run) the tracker re-starts from the last pose with a warning,
+as before.
 """
 from __future__ import annotations
 
@@ -113,22 +116,22 @@ def save(out, method: str, frame: int, params, tracker, watch, decided: dict) ->
     return True
 
 
-def load(out, method: str, last: dict) -> dict | None:
-    """The checkpoint of ``out`` if it belongs to the last finished frame, else None (logged).
+def load(out, method: str, finished: dict) -> dict | None:
+    """The checkpoint of ``out`` if it belongs to a finished frame, else None (logged).
 
     Parameters
     ----------
     out : results folder
     method : the ``--method`` name of the resumed run
-    last : the last complete record of ``frames.jsonl`` (``frame``, ``params``)
+    finished : dict frame -> (D,) params of the finished frames (``frames.jsonl``)
 
     Returns
     -------
-    dict with ``tracker``, ``watch`` and ``decided`` (a list of dicts: frame, params, score,
-    evaluations, info, seconds) or None
+    dict with ``frame``, ``tracker``, ``watch`` and ``decided`` (a list of dicts: frame,
+    params, score, evaluations, info, seconds) or None
     """
     path = Path(out) / CHECKPOINT
-    frame = int(last["frame"])
+    frame = max(finished)
     if not path.is_file():
         log.warning("%s: no checkpoint; the tracker re-starts from frame %d's pose (the "
                     "resumed frames may differ from an uninterrupted run's)", out, frame)
@@ -141,16 +144,16 @@ def load(out, method: str, last: dict) -> dict | None:
         log.warning("%s: unreadable checkpoint (%s); the tracker re-starts from frame %d's pose",
                     path, exc, frame)
         return None
-    want = np.asarray(last["params"], dtype=np.float64)
     problem = None
     if record.get("format") != FORMAT:
         problem = f"format {record.get('format')!r}"
     elif record.get("method") != method:
         problem = f"method {record.get('method')!r}"
-    elif record.get("frame") != frame:
-        problem = f"frame {record.get('frame')}, the last finished frame is {frame}"
-    elif not np.array_equal(np.asarray(record["params"]), want):
-        problem = "a pose other than frames.jsonl's"
+    elif record.get("frame") not in finished:
+        problem = f"frame {record.get('frame')}, not a finished frame (the last is {frame})"
+    elif not np.array_equal(np.asarray(record["params"]),
+                            np.asarray(finished[record["frame"]], dtype=np.float64)):
+        problem = f"a frame {record['frame']} pose other than frames.jsonl's"
     if problem:
         log.warning("%s: checkpoint of %s; the tracker re-starts from frame %d's pose (the "
                     "resumed frames may differ from an uninterrupted run's)", path, problem, frame)
@@ -174,6 +177,17 @@ def restore(record: dict, tracker, watch) -> dict:
                                             float(d["score"]), int(d["evaluations"]),
                                             d["info"]), float(d["seconds"]))
             for d in record["decided"]}
+
+
+def replayed(f: int, est, finished: dict) -> None:
+    """Check a frame tracked again after a checkpoint that was behind ``frames.jsonl``
+    against its written pose (the runner does not write it again); a difference is logged
+    (the written frames stay, the next frames go on from the new estimate)."""
+    if not np.array_equal(np.asarray(est.params, dtype=np.float64),
+                          np.asarray(finished[f], dtype=np.float64)):
+        log.warning("frame %d tracked again after the checkpoint differs from its written pose "
+                    "by up to %.3g: the tracker is not deterministic here", f,
+                    float(np.abs(np.asarray(est.params) - np.asarray(finished[f])).max()))
 
 
 def discard(out) -> None:

@@ -227,14 +227,19 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                            world=ds.meta.get("world"))  # joints/markers saved in the user's frame
     decided = {}  # frames already tracked while deciding between start hypotheses
     watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
+    finished = {}  # resumed: frame -> written params of the frames tracked again, not written
     try:
         done = writer.done_frames
         if resume and done:
             last = writer.last()
             first = int(last["frame"]) + 1
-            saved = checkpoint.load(out, method, last)
+            arrays = writer.arrays()
+            written = dict(zip(arrays["frame"].tolist(), arrays["params"]))
+            saved = checkpoint.load(out, method, written)
             if saved is not None:  # the state the uninterrupted run had: bit-identical frames
                 decided = checkpoint.restore(saved, tracker, watch)
+                finished = {f: written[f] for f in range(saved["frame"] + 1, first)}
+                first = saved["frame"] + 1
             else:
                 tracker.start(first - 1, np.asarray(last["params"]))
             log.info("resuming after frame %d%s", first - 1,
@@ -259,8 +264,11 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         for f in bar:
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
-            writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
-                          est.score, est.evaluations, secs, info=est.info)
+            if f in finished:  # written before a kill that came before its checkpoint
+                checkpoint.replayed(f, est, finished)
+            else:
+                writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
+                              est.score, est.evaluations, secs, info=est.info)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
             bad = watch.update(est.info.get("quality"))
             if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
