@@ -177,7 +177,8 @@ class ScoringEngine:
         if tile < 16 or tile > 512 or tile & (tile - 1):
             raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
         if reduction not in ("auto", "mipmap", "compute", "fastest"):
-            raise ValueError(f"reduction must be auto, mipmap, compute or fastest, got {reduction!r}")
+            raise ValueError("reduction must be auto, mipmap, compute or fastest, got "
+                             f"{reduction!r}")
         if reduction == "compute" and ctx.version_code < 430:
             raise ValueError("compute reduction needs OpenGL 4.3; this context is "
                              f"{ctx.version_code}")

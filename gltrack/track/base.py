@@ -126,5 +126,6 @@ def set_rng_state(rng: np.random.Generator, state: dict) -> None:
     :func:`rng_state`."""
     kind = type(rng.bit_generator).__name__
     if state.get("bit_generator") != kind:
-        raise ValueError(f"checkpoint generator is {state.get('bit_generator')!r}, this one {kind!r}")
+        raise ValueError(f"checkpoint generator is {state.get('bit_generator')!r}, "
+                         f"this one {kind!r}")
     rng.bit_generator.state = state

@@ -235,7 +235,7 @@ def _child(rng: np.random.Generator) -> np.random.Generator:
     older numpy: seeded by one draw)."""
     try:
         return rng.spawn(1)[0]
-    except AttributeError:
+    except (AttributeError, TypeError):  # older numpy, or a generator without a seed sequence
         return np.random.default_rng(int(rng.integers(2 ** 63)))
 
 
