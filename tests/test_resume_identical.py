@@ -101,7 +101,6 @@ def blobs(tmp_path_factory):
     return root
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("method", ["hps", "vlmm"])
 def test_particle_filters_kill_and_resume_is_bit_identical(blobs, tmp_path, method):
     """Particle sets, the generator, appearance colours and VLMM histories come back."""
