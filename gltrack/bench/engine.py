@@ -2,7 +2,8 @@
 
 For each mode the same candidates are scored three ways:
 
-* the engine (:class:`gltrack.render.engine.ScoringEngine`, reduction chosen by timing);
+* the engine (:class:`gltrack.render.engine.ScoringEngine`, ``reduction="fastest"``: the
+  reduction chosen by timing);
 * the naive baseline: one pyrender render per candidate and camera with CPU skinning, plus the
   numpy cost (:mod:`gltrack.bench.baseline`, run in a child process so its GL context never meets
   ours). For ``appearance4x64`` the baseline is the silhouette render count; it omits the triangle-id
@@ -146,7 +147,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
         kind = "depth" if name.startswith("depth") else "colour"
         cams = _rig(n_cams, kind)
         obs, obs_bits = [], []
-        with ScoringEngine(ctx, mesh, skel.n_joints, cams, tile=tile) as eng:
+        with ScoringEngine(ctx, mesh, skel.n_joints, cams, tile=tile, reduction="fastest") as eng:
             # Clusters accept ~3/4 of the quantised values per axis, so ~40 % of the model's pixels
             # are colour-consistent: counts large enough for a meaningful relative error.
             keep = rng.random((mesh.n_faces, 3, 32)) < 0.75

@@ -21,6 +21,10 @@ Layout::
       body.json     the body the tracker used (:func:`gltrack.body.model.body_record`: skeleton,
                     DOF preset, mesh level of detail and girths, "source"), written when the run
                     starts; export, render and eval rebuild the body from it
+      checkpoint.npz  the tracker's state after the last finished frame (particles, velocities,
+                    generator state, ...), replaced atomically after each frame's line is
+                    fsync'ed; ``--resume`` goes on from it bit for bit
+                    (:mod:`gltrack.track.checkpoint`; absent for a method that cannot say)
 
 Frame of the coordinates
 ------------------------

@@ -71,6 +71,16 @@ class VlmmPrior:
         self.states = None
 
     # -- state bookkeeping -------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """The particles' histories (``X``, VLMM ``states``; None before any), for a checkpoint."""
+        return {"X": None if self.X is None else self.X.copy(),
+                "states": None if self.states is None else np.asarray(self.states).copy()}
+
+    def set_state(self, state: dict) -> None:
+        """Take over histories from :meth:`get_state`."""
+        self.X = None if state["X"] is None else np.array(state["X"], dtype=np.float64)
+        self.states = None if state["states"] is None else np.array(state["states"])
+
     def _angle_cluster_logpost(self, angles):
         """(N, K) log P(cluster | angles) from the clusters' angle marginals."""
         g, a = self.model.gmm, self._a

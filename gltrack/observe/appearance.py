@@ -395,6 +395,21 @@ class AppearanceModel:
                  int(model.clusters.known.sum()), mesh.n_faces)
         return model
 
+    def get_state(self) -> dict:
+        """The colours kept per triangle (the clusters follow from them), for a checkpoint."""
+        return {"tri": self._tri.copy(), "hls": self._hls.copy(), "version": int(self.version)}
+
+    @classmethod
+    def from_state(cls, mesh, state: dict, params: AppearanceParams = AppearanceParams(),
+                   rng=None) -> "AppearanceModel":
+        """The model of :meth:`get_state` (same ``mesh``, ``params``; ``rng`` as the original's)."""
+        model = cls(mesh, params, rng)
+        model._tri = np.asarray(state["tri"], dtype=np.int64)
+        model._hls = np.asarray(state["hls"], dtype=np.uint8).reshape(-1, 3)
+        model.clusters = build_clusters(model._tri, model._hls, mesh.n_faces, params)
+        model.version = int(state["version"])
+        return model
+
     def refine(self, skinning, cameras, images, masks, *, engine=None) -> int:
         """Add colours seen at an estimated pose that fit their triangle's cluster; rebuild masks.
 

@@ -262,6 +262,25 @@ class ColourAcquisition:
             evidence.set_frame(frame)
             evidence.acquire(params)
 
+    def get_state(self) -> dict:
+        """The acquisition's progress and the colours acquired so far (for a checkpoint)."""
+        pc = self.evidence.part_colour
+        return {"first": self.first, "frames": self.frames,
+                "part_colour": None if pc is None else {"means": pc.means.copy(),
+                                                        "covs": pc.covs.copy()}}
+
+    @classmethod
+    def from_state(cls, evidence: BlobEvidence, state: dict) -> "ColourAcquisition":
+        """The acquisition of :meth:`get_state`, its colours put back into ``evidence``."""
+        from .blobs import PartColours
+
+        self = cls.__new__(cls)
+        self.evidence, self.first, self.frames = evidence, int(state["first"]), int(state["frames"])
+        pc = state["part_colour"]
+        evidence.part_colour = None if pc is None else PartColours(
+            np.asarray(pc["means"], dtype=np.float64), np.asarray(pc["covs"], dtype=np.float64))
+        return self
+
     def update(self, frame: int, params) -> None:
         """Blend in the colours seen at ``frame`` under the estimate ``params`` (D,)."""
         k = int(frame) - self.first

@@ -162,7 +162,6 @@ class DepthLikelihood:
         self.engine = None
         self.view = None
         self.weight, self.area = 1.0, 0.0
-        self._reduction = "auto"
         if not crop:
             self._make_engine(pinhole)
 
@@ -171,7 +170,7 @@ class DepthLikelihood:
             self.engine.release()
         self.engine = ScoringEngine(self.ctx, self.body.mesh, self.body.skeleton.n_joints, [camera],
                                     tile=self.tile, depth_params=self.params,
-                                    reduction=self._reduction, programs=self.programs)
+                                    programs=self.programs)
         self.view = camera
 
     def set_view(self, z, points, margin: float) -> None:
@@ -205,10 +204,7 @@ class DepthLikelihood:
 
     def cost(self, X: np.ndarray) -> np.ndarray:
         """(N,) depth cost of N poses (N, D) against the uploaded view, in ``area_unit``s."""
-        c = self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0] * self.weight
-        if self._reduction == "auto":
-            self._reduction = self.engine.reduction  # timed once; later engines reuse it
-        return c
+        return self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0] * self.weight
 
     def release(self) -> None:
         if self.engine is not None:

@@ -11,6 +11,11 @@ Per frame the observations are uploaded once (:meth:`ScoringEngine.set_depth`, `
 3. the per-pixel costs of ``shaders/costs.glsl`` are reduced to one sum per tile and channel,
    either by a full-screen cost pass plus the mipmap chain (the paper's method,
    ``shaders/cost.frag``) or by one compute work group per tile (``shaders/reduce.comp``, GL 4.3+).
+   Each reduction sums in a fixed order, so a score is bit for bit the same on every call on a
+   given machine; the two orders differ in the last bits of float32 (about 1e-7 relative), so
+   ``reduction="auto"`` picks by capability (compute where there is GL 4.3), never by timing: a
+   timed choice flips between runs and the searches follow those last bits apart
+   (``"fastest"`` times them, for benchmarks).
 
 Channels (K = 4, always in this order): ``depth`` (sum of Ganapathi's smoothstep cost),
 ``silhouette`` (Bandouch's XOR pixel count outside the blocking mask), ``appearance`` (count of
@@ -151,8 +156,10 @@ class ScoringEngine:
     max_texture : int
         Largest grid texture side; batches are chunked so the grid fits (memory stays bounded:
         about 4 textures of this size per camera). Clamped to GL_MAX_TEXTURE_SIZE.
-    reduction : {"auto", "mipmap", "compute"}
-        "auto" times both on the first batch and keeps the faster (compute needs GL 4.3).
+    reduction : {"auto", "mipmap", "compute", "fastest"}
+        "auto": "compute" where the context has GL 4.3, else "mipmap" (the same on every run);
+        "fastest" times both on the first batch and keeps the faster (the choice may differ
+        between runs, and with it the last bits of the scores: for benchmarks only).
     depth_params : DepthCostParams
     custom : CustomCost, optional
     near, far : float, metres
@@ -169,8 +176,9 @@ class ScoringEngine:
                  programs: ProgramCache | None = None):
         if tile < 16 or tile > 512 or tile & (tile - 1):
             raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
-        if reduction not in ("auto", "mipmap", "compute"):
-            raise ValueError(f"reduction must be auto, mipmap or compute, got {reduction!r}")
+        if reduction not in ("auto", "mipmap", "compute", "fastest"):
+            raise ValueError("reduction must be auto, mipmap, compute or fastest, got "
+                             f"{reduction!r}")
         if reduction == "compute" and ctx.version_code < 430:
             raise ValueError("compute reduction needs OpenGL 4.3; this context is "
                              f"{ctx.version_code}")
@@ -190,8 +198,11 @@ class ScoringEngine:
         side = min(int(max_texture), limit)
         self.max_tiles_side = max(1, 1 << int(np.log2(max(side // self.tile, 1))))
         self.max_batch = self.max_tiles_side * self.max_tiles_side
-        self.reduction = reduction if reduction != "auto" or ctx.version_code >= 430 else "mipmap"
-        self._auto_pending = reduction == "auto" and ctx.version_code >= 430
+        if reduction in ("auto", "fastest"):
+            self.reduction = "compute" if ctx.version_code >= 430 else "mipmap"
+        else:
+            self.reduction = reduction
+        self._auto_pending = reduction == "fastest" and ctx.version_code >= 430
         self.programs = programs or ProgramCache(ctx)
         self._owns_programs = programs is None
         self.views = [_View(c, self.tile) for c in cameras]
@@ -647,11 +658,19 @@ def silhouette_iou(model_px, foreground_px, xor_px):
                         np.nan)
 
 
-def choose_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str:
-    """The reduction ``reduction="auto"`` picks here, found the way the engine finds it.
+def choose_reduction(ctx: moderngl.Context) -> str:
+    """The reduction ``reduction="auto"`` picks here: "compute" with GL 4.3, else "mipmap".
+
+    Used by ``gltrack info``.
+    """
+    return "compute" if ctx.version_code >= 430 else "mipmap"
+
+
+def fastest_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str:
+    """The reduction ``reduction="fastest"`` picks here (timed: it may differ between calls).
 
     Times both reductions on ``n`` candidates of the default body (depth cost, one camera at
-    ``tile``); "mipmap" without GL 4.3. Used by ``gltrack info``.
+    ``tile``); "mipmap" without GL 4.3.
     """
     if ctx.version_code < 430:
         return "mipmap"
@@ -660,7 +679,8 @@ def choose_reduction(ctx: moderngl.Context, n: int = 256, tile: int = 64) -> str
 
     body = BodyModel.build()
     cam = look_at_camera("probe", (0.0, 1.0, 2.6), (0.0, 0.9, 0.0), tile, tile, 50.0, kind="depth")
-    with ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, [cam], tile=tile) as eng:
+    with ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, [cam], tile=tile,
+                       reduction="fastest") as eng:
         eng.set_depth(0, np.zeros((tile, tile)))
         eng.score(body.skinning(np.repeat(body.dofs.zero(body.skeleton)[None], n, axis=0)))
         return eng.reduction

@@ -1,4 +1,5 @@
-"""What every tracker provides: ``start``, ``step``, ``transform_state``, ``close``."""
+"""What every tracker provides: ``start``, ``step``, ``transform_state``, ``close``, and for
+bit-identical resume ``get_state`` / ``set_state`` (:mod:`gltrack.track.checkpoint`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -95,5 +96,36 @@ class Tracker:
         raise ValueError(f"method {self.method!r} has no automatic initialisation; "
                          "use --init groundtruth or --init POSE.npy")
 
+    def get_state(self) -> dict | None:
+        """Everything the next :meth:`step` depends on, or None when the tracker cannot say.
+
+        A dict of numpy arrays, numbers, strings, None and nested dicts / lists of them
+        (:mod:`gltrack.track.checkpoint` writes it after every frame): the pose hypotheses,
+        velocities, motion-prior histories, learnt appearance and the generator's state
+        (:func:`rng_state`). A fresh tracker built with the same dataset, body and options and
+        given it by :meth:`set_state` must track the next frames bit for bit as this one
+        would. None (the default): a resumed run re-starts from the last pose instead.
+        """
+        return None
+
+    def set_state(self, state: dict) -> None:
+        """Take over a state from :meth:`get_state` (instead of :meth:`start`)."""
+        raise NotImplementedError(f"method {self.method!r} cannot restore a checkpoint")
+
     def close(self) -> None:
         pass
+
+
+def rng_state(rng: np.random.Generator) -> dict:
+    """The generator's bit-generator state (a JSON-able dict; big integers stay exact)."""
+    return dict(rng.bit_generator.state)
+
+
+def set_rng_state(rng: np.random.Generator, state: dict) -> None:
+    """Put ``rng`` (a generator of the same bit-generator kind) in ``state`` from
+    :func:`rng_state`."""
+    kind = type(rng.bit_generator).__name__
+    if state.get("bit_generator") != kind:
+        raise ValueError(f"checkpoint generator is {state.get('bit_generator')!r}, "
+                         f"this one {kind!r}")
+    rng.bit_generator.state = state

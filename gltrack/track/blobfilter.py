@@ -31,7 +31,7 @@ from gltrack.observe.blob_evidence import (LOST_KL, SEGMENTATIONS, BlobEvidence,
                                            ColourAcquisition, placed_candidates, stage_seconds)
 from gltrack.sample import AnnealedParticleFilter, StateSpace, cost_weights
 
-from .base import FrameEstimate, NoPersonError, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -183,6 +183,19 @@ class CondensationTracker(Tracker):
         if self.P is None:
             raise RuntimeError("start() the tracker first")
         self.P = self.body.dofs.validate(fn(self.P))
+
+    def get_state(self):
+        """Particles, estimate, blob colours and the generator."""
+        if self.P is None:
+            return None
+        return {"P": self.P.copy(), "est": np.array(self.est, dtype=np.float64),
+                "colours": self.colours.get_state(), "rng": rng_state(self.rng)}
+
+    def set_state(self, state):
+        self.P = np.array(state["P"], dtype=np.float64)
+        self.est = np.array(state["est"], dtype=np.float64)
+        self.colours = ColourAcquisition.from_state(self.evidence, state["colours"])
+        set_rng_state(self.rng, state["rng"])
 
     # -- tracking -----------------------------------------------------------------------------
     def step(self, frame):

@@ -55,7 +55,7 @@ from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb
 from gltrack.sample.partitions import default_partitions, hill_climb_order
 
-from .base import FrameEstimate, NoPersonError, Tracker, two_modes
+from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -286,6 +286,19 @@ class HillClimbDepthTracker(Tracker):
     def start(self, frame, params, velocity=None):
         self.x = self.body.dofs.validate(params)[0]
         self.v = np.zeros_like(self.x) if velocity is None else np.asarray(velocity, float).copy()
+
+    def get_state(self):
+        """The pose, its velocity and the generator (the crop window follows from them)."""
+        if self.x is None:
+            return None
+        return {"x": self.x.copy(), "v": self.v.copy(),
+                "rng": None if self.rng is None else rng_state(self.rng)}
+
+    def set_state(self, state):
+        self.x = np.array(state["x"], dtype=np.float64)
+        self.v = np.array(state["v"], dtype=np.float64)
+        if state.get("rng") is not None and self.rng is not None:
+            set_rng_state(self.rng, state["rng"])
 
     def set_view(self, z, pose=None, margin=None):
         """Upload the observation ``z`` for scoring, cropped around ``pose`` when ``crop`` is on.

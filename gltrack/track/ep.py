@@ -124,6 +124,16 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
                       if options.reach_slack >= 0 else None)
         self.accepted_total = 0
 
+    def get_state(self):
+        state = super().get_state()
+        if state is not None:
+            state["accepted_total"] = int(self.accepted_total)
+        return state
+
+    def set_state(self, state):
+        super().set_state(state)
+        self.accepted_total = int(state.get("accepted_total", 0))
+
     def _refine_fn(self, x_pred):
         opt = self.opt
         cost = self.objective(x_pred)

@@ -65,6 +65,15 @@ class LossWatch:
             self.good.append(float(quality))
         return self.bad
 
+    def get_state(self) -> dict:
+        """The recent good frames' qualities and the bad frames in a row (for a checkpoint)."""
+        return {"good": [float(q) for q in self.good], "bad": int(self.bad)}
+
+    def set_state(self, state: dict) -> None:
+        """Take over a state from :meth:`get_state`."""
+        self.good = deque((float(q) for q in state["good"]), maxlen=WINDOW)
+        self.bad = int(state["bad"])
+
     def reset(self) -> None:
         """After a re-start: the reference starts again from the new track's frames."""
         self.good.clear()

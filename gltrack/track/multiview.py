@@ -83,7 +83,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 
-from .base import FrameEstimate, NoPersonError, Tracker, two_modes
+from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -244,6 +244,15 @@ class HpsOptions(AnnealedOptions):
                                      *at_least(self, 0, "min_spread")]
 
 
+def _child(rng: np.random.Generator) -> np.random.Generator:
+    """An independent generator derived from ``rng`` without drawing from it (numpy >= 1.25;
+    older numpy: seeded by one draw)."""
+    try:
+        return rng.spawn(1)[0]
+    except (AttributeError, TypeError):  # older numpy, or a generator without a seed sequence
+        return np.random.default_rng(int(rng.integers(2 ** 63)))
+
+
 def make_sampler(method: str, dofs, fps: float, opt: MultiviewOptions):
     """The sampler of ``method`` for a ``DofSet`` at ``fps``, and its particle count.
 
@@ -301,7 +310,11 @@ class MultiviewTracker(Tracker):
         self.opt = (options or self.options_class()).validate()
         self.body = body
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.obs = MultiviewObservation(dataset, self.opt.foreground, self.rng)
+        # the background models are fitted lazily, on the first frame read: their own generator
+        # (its first state goes into checkpoints), so that a resumed run fits them the same
+        obs_rng = _child(self.rng)
+        self._obs_rng0 = rng_state(obs_rng)
+        self.obs = MultiviewObservation(dataset, self.opt.foreground, obs_rng)
         self.fps = dataset.fps
         self.likelihood = SilhouetteLikelihood(
             ctx, body, self.obs, tile=self.opt.tile, appearance=self.opt.appearance,
@@ -450,6 +463,36 @@ class MultiviewTracker(Tracker):
         if self.particles is None:
             raise RuntimeError("start() the tracker first")
         self.particles = self.body.dofs.validate(fn(self.particles))
+
+    def get_state(self):
+        """Particles, last estimate and velocity, frame count, appearance model, behaviour
+        prior histories and the generators."""
+        if self.particles is None:
+            return None
+        app = self.likelihood.appearance
+        return {"particles": self.particles.copy(), "last": np.array(self.last, dtype=np.float64),
+                "velocity": np.array(self.velocity, dtype=np.float64),
+                "frames_done": int(self.frames_done), "rng": rng_state(self.rng),
+                "obs_rng": self._obs_rng0,
+                "appearance": None if app is None else app.get_state(),
+                "prior": None if self.prior is None else self.prior.get_state()}
+
+    def set_state(self, state):
+        from gltrack.observe.appearance import AppearanceModel
+
+        self.particles = np.array(state["particles"], dtype=np.float64)
+        self.last = np.array(state["last"], dtype=np.float64)
+        self.velocity = np.array(state["velocity"], dtype=np.float64)
+        self.frames_done = int(state["frames_done"])
+        self._obs_rng0 = state["obs_rng"]
+        set_rng_state(self.obs.rng, self._obs_rng0)
+        self.obs._bg.clear()  # re-fitted from the first state, as the original run fitted them
+        app = state.get("appearance")
+        self.likelihood.appearance = None if app is None or not self.likelihood.use_appearance \
+            else AppearanceModel.from_state(self.body.mesh, app, rng=self.rng)
+        if self.prior is not None and state.get("prior") is not None:
+            self.prior.set_state(state["prior"])
+        set_rng_state(self.rng, state["rng"])
 
     def step(self, frame):
         if self.particles is None:

@@ -3,7 +3,8 @@
 The method comes from :data:`gltrack.track.registry.METHODS`. The runner owns the GL context,
 the results writer (``body.json``, the body tracked with, when the run starts;
 ``frames.jsonl`` appended per frame, ``--resume`` continues after the last
-finished frame) and the final ``poses.npz`` / ``timing.json`` / ``poses.bvh``.
+finished frame from the tracker state checkpointed after it, :mod:`gltrack.track.checkpoint`)
+and the final ``poses.npz`` / ``timing.json`` / ``poses.bvh``.
 
 Hooks: ``track(..., hooks=[h])`` calls ``h(tracker, frame)`` before every frame is tracked;
 the benches inject faults this way (``gltrack.bench.faults``) without the trackers knowing.
@@ -22,6 +23,7 @@ from gltrack.data.provenance import recorded_range, run_provenance
 from gltrack.data.results import BODY, ResultsWriter, load_body_record
 from gltrack.export.bvh import write_params_bvh
 
+from . import checkpoint
 from .bodies import resolve_body
 from .base import NoPersonError
 from .lost import LossWatch
@@ -290,14 +292,26 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                            provenance=run_provenance(ds, dataclasses.asdict(opts), seed, init,
                                                      (start, stop), body_rec), force=force)
     decided = {}  # frames already tracked while deciding between start hypotheses
+    watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
+    finished = {}  # resumed: frame -> written params of the frames tracked again, not written
     try:
         done = writer.done_frames
         if resume and done:
             last = writer.last()
             first = int(last["frame"]) + 1
-            tracker.start(first - 1, np.asarray(last["params"]))
-            log.info("resuming after frame %d", first - 1)
+            arrays = writer.arrays()
+            written = dict(zip(arrays["frame"].tolist(), arrays["params"]))
+            saved = checkpoint.load(out, method, written)
+            if saved is not None:  # the state the uninterrupted run had: bit-identical frames
+                decided = checkpoint.restore(saved, tracker, watch)
+                finished = {f: written[f] for f in range(saved["frame"] + 1, first)}
+                first = saved["frame"] + 1
+            else:
+                tracker.start(first - 1, np.asarray(last["params"]))
+            log.info("resuming after frame %d%s", first - 1,
+                     " from its checkpoint" if saved is not None else "")
         else:
+            checkpoint.discard(out)
             t0 = time.perf_counter()
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
                                         check_start)
@@ -313,12 +327,14 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                      time.perf_counter() - t0)
         bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
                    disable=not progress, leave=False)
-        watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
         for f in bar:
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
-            writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
-                          est.score, est.evaluations, secs, info=est.info)
+            if f in finished:  # written before a kill that came before its checkpoint
+                checkpoint.replayed(f, est, finished)
+            else:
+                writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
+                              est.score, est.evaluations, secs, info=est.info)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
             bad = watch.update(est.info.get("quality"))
             if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
@@ -328,6 +344,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 tracker, decided = _restart(tracker, make, f,
                                             range(f + 1, min(stop, f + 1 + max(decide_frames, 1))),
                                             hooks)
+            checkpoint.save(out, method, f, est.params, tracker, watch, decided)
         timing = writer.finish()
         arrays = writer.arrays()
         write_params_bvh(Path(out) / "poses.bvh", body, arrays["params"], ds.fps)

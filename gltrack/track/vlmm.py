@@ -42,7 +42,7 @@ from gltrack.observe.multiview import MultiviewObservation, SilhouetteLikelihood
 from gltrack.sample import SIRFilter, StateSpace, cost_weights, systematic_resample
 from gltrack.sample.weights import Weights, annealing_exponent
 
-from .base import FrameEstimate, NoPersonError, Tracker
+from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state
 from .blobfilter import BlobEvidenceOptions
 from .options import at_least, choice, within
 
@@ -226,6 +226,22 @@ class VlmmTracker(Tracker):
         if self.P is None:
             raise RuntimeError("start() the tracker first")
         self.P = self.body.dofs.validate(fn(self.P))
+
+    def get_state(self):
+        """Particles, estimate, bad-frame count, VLMM histories, blob colours, generator."""
+        if self.P is None:
+            return None
+        return {"P": self.P.copy(), "est": np.array(self.est, dtype=np.float64),
+                "bad": int(self._bad), "prior": self.prior.get_state(),
+                "colours": self.colours.get_state(), "rng": rng_state(self.rng)}
+
+    def set_state(self, state):
+        self.P = np.array(state["P"], dtype=np.float64)
+        self.est = np.array(state["est"], dtype=np.float64)
+        self._bad = int(state["bad"])
+        self.prior.set_state(state["prior"])
+        self.colours = ColourAcquisition.from_state(self.evidence, state["colours"])
+        set_rng_state(self.rng, state["rng"])
 
     def step(self, frame):
         if self.P is None:
