@@ -194,6 +194,13 @@ def test_video_codec_is_reported_and_read_back(scene, tmp_path, monkeypatch, cap
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any("browsers" in m and "imageio-ffmpeg" in m for m in warned), warned
     assert any("mpeg4 by OpenCV mp4v" in r.getMessage() for r in caplog.records)
+    # an ffmpeg that does not run: OpenCV's encoder instead, said in a warning
+    monkeypatch.setattr(overlay, "_FFMPEG", (str(tmp_path / "no-ffmpeg"), "PATH"))
+    caplog.clear()
+    out = render_overlay(scene["res"], scene["ds"], tmp_path / "n.mp4", cameras=0,
+                         progress=False, max_frames=1)
+    assert out.codec == "mpeg4" and len(_read_video(out.path)[0]) == 1
+    assert any("no-ffmpeg" in r.getMessage() for r in caplog.records)
 
 
 def _turbo_index(pixels):

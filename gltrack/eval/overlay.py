@@ -737,14 +737,20 @@ def open_video_writer(out, fps: float, size):
     if suffix == ".mp4":
         ff = ffmpeg_h264()
         if ff is not None:
-            w = _FfmpegWriter(ff[0], out, fps, size)
-            if w.isOpened():
-                video = OverlayVideo(out, "h264", f"ffmpeg libx264 ({ff[1]})", 0, size)
-                log.info("%s: H.264 (%s)", out, video.encoder)
-                return w, video
-            with suppress(OSError):
-                w.release()
-            log.warning("%s: ffmpeg (%s) did not start; trying OpenCV's encoders", out, ff[0])
+            try:
+                w = _FfmpegWriter(ff[0], out, fps, size)
+            except OSError as e:
+                log.warning("%s: ffmpeg (%s) does not start (%s); trying OpenCV's encoders",
+                            out, ff[0], e)
+            else:
+                if w.isOpened():
+                    video = OverlayVideo(out, "h264", f"ffmpeg libx264 ({ff[1]})", 0, size)
+                    log.info("%s: H.264 (%s)", out, video.encoder)
+                    return w, video
+                with suppress(OSError):
+                    w.release()
+                log.warning("%s: ffmpeg (%s) stopped at once; trying OpenCV's encoders", out,
+                            ff[0])
     tries = ([("avc1", out, "h264")] if suffix == ".mp4" and h264_available() else []) \
         + ([("mp4v", out, "mpeg4")] if suffix == ".mp4" else []) \
         + [("MJPG", out.with_suffix(".avi"), "mjpeg")]
