@@ -62,8 +62,7 @@ def run_demo(out="gltrack-demo", *, seed: int = 0, progress: bool = True, overwr
         ds = Dataset.open(ds_dir)
         m = evaluate(load_results(res_dir), ds.groundtruth())
         write_json(m, res_dir / "metrics.json")
-        video = render_overlay(res_dir, ds_dir, out / f"{rig}_overlay.mp4", progress=progress,
-                               min_height=432)
+        video = render_overlay(res_dir, ds_dir, out / f"{rig}_overlay.mp4", progress=progress)
         metrics_by_rig[f"{rig} ({method})"] = m
         summary["rigs"][rig] = {
             "method": method, "mean_joint_error_mm": m["mean_joint_error_mm"],
@@ -73,7 +72,8 @@ def run_demo(out="gltrack-demo", *, seed: int = 0, progress: bool = True, overwr
             "tracking_fps": timing.get("fps"), "evaluations_per_frame":
                 timing["evaluations"] / max(timing["frames"], 1),
             "synth_seconds": t_synth, "track_seconds": t_track,
-            "dataset": str(ds_dir), "result": str(res_dir), "video": str(video)}
+            "dataset": str(ds_dir), "result": str(res_dir), "video": str(video.path),
+            "video_codec": video.codec}
     plot = out / "errors.png"
     if metrics_by_rig:
         plot_comparison(metrics_by_rig, plot, title="gltrack demo: error over time", fps=fps)
@@ -95,7 +95,9 @@ def format_summary(s: dict) -> str:
                      f"{(r['tracking_fps'] or 0):9.2f} {r['evaluations_per_frame']:11.0f}")
     lines.append("")
     for rig, r in s["rigs"].items():
-        lines.append(f"{rig}: dataset {r['dataset']}, result {r['result']} (poses.bvh inside), video {r['video']}")
+        codec = f" ({r['video_codec']})" if r.get("video_codec") else ""
+        lines.append(f"{rig}: dataset {r['dataset']}, result {r['result']} (poses.bvh inside), "
+                     f"video {r['video']}{codec}")
     for k, v in s["files"].items():
         lines.append(f"{k}: {v}")
     return "\n".join(lines)

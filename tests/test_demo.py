@@ -19,8 +19,13 @@ def test_demo_writes_everything(tmp_path):
         assert r["mean_joint_error_mm"] < 250, r
         for name in ("poses.npz", "poses.bvh", "timing.json", "frames.jsonl", "metrics.json"):
             assert (out / f"{rig}_result" / name).is_file()
-        cap = cv2.VideoCapture(str(out / f"{rig}_overlay.mp4"))
+        assert r["video"] == str(out / f"{rig}_overlay.mp4")
+        cap = cv2.VideoCapture(r["video"])
         assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == summary["frames"]
+        # the codec the summary reports is the one the file holds
+        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode().lower()
+        assert fourcc in {"h264": ("h264", "avc1"), "mpeg4": ("fmp4", "mp4v")}[r["video_codec"]]
+        assert f"({r['video_codec']})" in res.stdout
         ok, frame = cap.read()
         assert ok and frame.std() > 10, "the video shows a picture"
     img = cv2.imread(str(out / "errors.png"))

@@ -9,13 +9,15 @@ from gltrack.cli import main
 from gltrack.data.dataset import DatasetWriter
 from gltrack.data.results import ResultsWriter, load_results
 from gltrack.eval.metrics import EVAL_JOINTS
-from gltrack.eval.overlay import (GROUNDTRUTH_BGR, TRACKED_BGR, OverlayRenderer, depth_to_bgr,
-                                  render_overlay, tile)
+from gltrack.eval import overlay
+from gltrack.eval.overlay import (GROUNDTRUTH_BGR, OUTLINE_BGR, PART_GROUPS, TRACKED_BGR,
+                                  OverlayRenderer, depth_to_bgr, part_colour, render_overlay,
+                                  tile)
 from gltrack.render import reference as ref
 from trackdata import smooth_motion
 
 N = 5
-TEXT_BOX = (slice(0, 36), slice(0, 110))  # rows, cols of the frame / error text
+TEXT_BOX = (slice(0, 40), slice(0, 130))  # rows, cols of the frame / error text
 
 
 @pytest.fixture(scope="module")
@@ -126,11 +128,11 @@ def test_frame_error_matches_independent_computation(scene):
     assert np.all(expect > 0.005)
 
 
-def test_mp4_video_frames(scene, tmp_path):
-    out = render_overlay(scene["res"], scene["ds"], tmp_path / "v.mp4", cameras=0, progress=False)
-    assert out == tmp_path / "v.mp4"
-    cap = cv2.VideoCapture(str(out))
+def _read_video(path):
+    """(frames, fourcc) of a video file, every frame decoded."""
+    cap = cv2.VideoCapture(str(path))
     assert cap.isOpened()
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode(errors="replace")
     frames = []
     while True:
         ok, img = cap.read()
@@ -138,21 +140,149 @@ def test_mp4_video_frames(scene, tmp_path):
             break
         frames.append(img)
     cap.release()
+    return frames, fourcc.lower()
+
+
+#: FOURCCs OpenCV reads back for each codec render_overlay reports
+READ_FOURCC = {"h264": ("h264", "avc1"), "mpeg4": ("fmp4", "mp4v"), "mjpeg": ("mjpg",)}
+
+
+def test_mp4_video_frames(scene, tmp_path):
+    out = render_overlay(scene["res"], scene["ds"], tmp_path / "v.mp4", cameras=0, progress=False,
+                         min_height=0)
+    assert out.path == tmp_path / "v.mp4" and out.frames == N
+    frames, fourcc = _read_video(out.path)
+    assert fourcc in READ_FOURCC[out.codec], (out, fourcc)
     assert len(frames) == N
-    assert frames[0].shape == (144, 176, 3)
+    # the camera (176 x 144) above the legend strip, the height padded to even
+    assert frames[0].shape[1] == 176 and frames[0].shape[0] > 144 + 20
+    assert (out.size[1], out.size[0]) == frames[0].shape[:2]
     k = 3
     with OverlayRenderer(scene["res"], scene["ds"], cameras=0) as r:
         raw = depth_to_bgr(r.dataset.depth(k, 0), *r.depth_range["cam0"])
     inside, far = _regions(_silhouette(scene, scene["Q"][k], scene["cams"][0]))
-    diff = np.abs(frames[k].astype(float) - raw.astype(float)).mean(axis=-1)
-    # MPEG-4 is lossy: far from the body only coding noise, on the body the model colours
+    diff = np.abs(frames[k][:144].astype(float) - raw.astype(float)).mean(axis=-1)
+    # lossy coding: far from the body only coding noise, on the body the model colours
     assert diff[far].mean() < 4.0
     assert diff[inside].mean() > 25.0
 
 
-def test_tiled_cameras_and_avi_via_cli(scene, tmp_path):
+def test_video_codec_is_reported_and_read_back(scene, tmp_path, monkeypatch, caplog):
+    """H.264 when an encoder is at hand (checked by reading the file back, with its index
+    first), else MPEG-4 Part 2 with a warning saying browsers will not play it."""
+    import logging
+
+    if overlay.ffmpeg_h264() is not None or overlay.h264_available():
+        out = render_overlay(scene["res"], scene["ds"], tmp_path / "h.mp4", cameras=0,
+                             progress=False, max_frames=3)
+        assert out.codec == "h264" and out.frames == 3
+        frames, fourcc = _read_video(out.path)
+        assert fourcc in READ_FOURCC["h264"] and len(frames) == 3
+        assert frames[0].shape[:2] == (out.size[1], out.size[0])
+        if out.encoder.startswith("ffmpeg"):
+            data = out.path.read_bytes()
+            assert 0 < data.find(b"moov") < data.find(b"mdat"), "+faststart: the index first"
+    # no H.264 encoder: mp4v, and a warning that says so and how to get one
+    monkeypatch.setattr(overlay, "_FFMPEG", None)
+    monkeypatch.setattr(overlay, "_H264", False)
+    with caplog.at_level(logging.INFO, logger="gltrack.eval.overlay"):
+        out = render_overlay(scene["res"], scene["ds"], tmp_path / "m.mp4", cameras=0,
+                             progress=False, max_frames=2)
+    assert (out.codec, out.encoder, out.frames) == ("mpeg4", "OpenCV mp4v", 2)
+    frames, fourcc = _read_video(out.path)
+    assert fourcc in READ_FOURCC["mpeg4"] and len(frames) == 2
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("browsers" in m and "imageio-ffmpeg" in m for m in warned), warned
+    assert any("mpeg4 by OpenCV mp4v" in r.getMessage() for r in caplog.records)
+    # an ffmpeg that does not run: OpenCV's encoder instead, said in a warning
+    monkeypatch.setattr(overlay, "_FFMPEG", (str(tmp_path / "no-ffmpeg"), "PATH"))
+    caplog.clear()
+    out = render_overlay(scene["res"], scene["ds"], tmp_path / "n.mp4", cameras=0,
+                         progress=False, max_frames=1)
+    assert out.codec == "mpeg4" and len(_read_video(out.path)[0]) == 1
+    assert any("no-ffmpeg" in r.getMessage() for r in caplog.records)
+
+
+def _turbo_index(pixels):
+    """Index into the TURBO map of each (N, 3) BGR pixel that is exactly one of its colours,
+    -1 for the others."""
+    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[None], cv2.COLORMAP_TURBO)[0]
+    key = lambda a: (a[..., 0].astype(np.int64) << 16) | (a[..., 1].astype(np.int64) << 8) \
+        | a[..., 2]  # noqa: E731
+    table = dict(zip(key(lut).tolist(), range(256)))
+    return np.array([table.get(v, -1) for v in key(pixels).tolist()])
+
+
+def test_legend_and_depth_colour_bar(scene):
     with OverlayRenderer(scene["res"], scene["ds"]) as r:
-        both = r.frame(0)
+        plain = r.frame(0, legend=False)
+        img = r.frame(0)
+        near, far = r.depth_range["cam0"]
+    with OverlayRenderer(scene["res"], scene["ds"], cameras="cam1") as r:
+        colour_only = r.frame(0)
+    # the legend is a strip below the cameras, which are unchanged
+    assert img.shape[1] == plain.shape[1] and img.shape[0] > plain.shape[0] + 30
+    np.testing.assert_array_equal(img[:plain.shape[0]], plain)
+    strip = img[plain.shape[0]:]
+    colours = {tuple(int(v) for v in c) for c in np.unique(strip.reshape(-1, 3), axis=0)}
+    for label, k in PART_GROUPS:
+        assert part_colour(k) in colours, label
+    for bgr in (OUTLINE_BGR, TRACKED_BGR, GROUNDTRUTH_BGR):
+        assert tuple(bgr) in colours
+    assert len({part_colour(k) for _, k in PART_GROUPS}) == len(PART_GROUPS)
+    # the depth colour bar: rows whose pixels are nearly all TURBO colours, their indices falling
+    # monotonically from near (255, left) to far (0, right)
+    idx = np.stack([_turbo_index(row) for row in strip])
+    bar_rows = np.flatnonzero((idx >= 0).mean(axis=1) > 0.5)
+    assert len(bar_rows) >= 5
+    for y in bar_rows:
+        v = idx[y][idx[y] >= 0]
+        assert v[0] >= 250 and v[-1] <= 5 and np.all(np.diff(v) <= 0), y
+        assert len(np.unique(v)) > 100  # a gradient, not a few blocks
+    # ... which the colour camera alone does not get
+    with OverlayRenderer(scene["res"], scene["ds"], cameras="cam1") as r:
+        h = r.frame(0, legend=False).shape[0]
+    cidx = np.stack([_turbo_index(row) for row in colour_only[h:]])
+    assert not np.any((cidx >= 0).mean(axis=1) > 0.5)
+    assert near < far
+
+
+def test_depth_body_coloured_by_part(scene):
+    """In a depth overlay each part shows its own colour: the thighs of the two sides differ,
+    and each is nearer its own part colour than the other side's."""
+    from gltrack.body.mesh import PARTS
+
+    k, c = 2, 0
+    cam, body = scene["cams"][c], scene["body"]
+    with OverlayRenderer(scene["res"], scene["ds"], cameras=c) as r:
+        img = r.camera_frame(k, c, scale=3)[1::3, 1::3]  # the centre of each enlarged pixel
+        raw = r.input_image(k, c)
+    posed = ref.skin_vertices(body.mesh, body.skinning(scene["Q"][k][None]))[0]
+    pc = ref.world_to_camera(posed, cam.R, cam.t)
+    _, tri = ref.rasterize(pc, body.mesh.faces, cam.K, cam.width, cam.height)
+    part = np.where(tri >= 0, body.mesh.part[body.mesh.faces[np.maximum(tri, 0), 0]], -1)
+    mean = {}
+    for name in ("l_thigh", "r_thigh", "torso"):
+        m = cv2.erode((part == PARTS.index(name)).astype(np.uint8), np.ones((3, 3), np.uint8))
+        m = m.astype(bool)
+        assert m.sum() >= 10, name
+        mean[name] = np.median(img[m].astype(float), axis=0)
+        assert np.abs(mean[name] - np.median(raw[m].astype(float), axis=0)).sum() > 60, name
+
+    def unit(v):
+        v = np.asarray(v, float)
+        return v / np.linalg.norm(v)
+
+    assert np.abs(mean["l_thigh"] - mean["r_thigh"]).sum() > 80
+    for own, other in (("l_thigh", "r_thigh"), ("r_thigh", "l_thigh")):
+        got = unit(mean[own])
+        assert got @ unit(part_colour(PARTS.index(own))) \
+            > got @ unit(part_colour(PARTS.index(other))), own
+
+
+def test_tiled_cameras_and_avi_via_cli(scene, tmp_path, capsys):
+    with OverlayRenderer(scene["res"], scene["ds"]) as r:
+        both = r.frame(0, legend=False)
         left, right = r.camera_frame(0, 0), r.camera_frame(0, 1)
     assert both.shape == (144, 352, 3)
     np.testing.assert_array_equal(both[:, :176], left)
@@ -161,13 +291,20 @@ def test_tiled_cameras_and_avi_via_cli(scene, tmp_path):
     assert not both[132:, 176:].any()
 
     out = tmp_path / "c.avi"
+    capsys.readouterr()
     assert main(["-q", "render", str(scene["res"]), str(scene["ds"]), "--out", str(out),
                  "--camera", "cam1", "--max-frames", "2"]) == 0
+    assert "mjpeg, 2 frames" in capsys.readouterr().out
+    with OverlayRenderer(scene["res"], scene["ds"], cameras="cam1") as r:
+        k = r.upscale_for(overlay.MIN_HEIGHT)
+        expect = r.frame(0, scale=k).shape
+    assert k == 4  # 121 rows -> 484, at least MIN_HEIGHT
     cap = cv2.VideoCapture(str(out))
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     cap.release()
-    assert n == 2 and size == (162, 122)  # 161 x 121 padded to even
+    # 161 x 121 enlarged 4 times, the legend below, padded to even
+    assert n == 2 and size == (644, expect[0] + expect[0] % 2) and expect[1] == 644
 
 
 def test_tile_grid():
@@ -223,20 +360,16 @@ def test_multiview_grid_video_with_iou(tmp_path):
         w.finish()
     out = tmp_path / "grid.mp4"
     assert main(["-q", "render", str(tmp_path / "res"), str(ds), "--out", str(out)]) == 0
-    cap = cv2.VideoCapture(str(out))
-    frames = []
-    while True:
-        ok, img = cap.read()
-        if not ok:
-            break
-        frames.append(img)
-    cap.release()
-    assert len(frames) == 3 and frames[0].shape == (2 * 96, 2 * 128, 3)
+    frames, _ = _read_video(out)
+    k = 3  # the 2 x 96 rows of the grid enlarged to at least MIN_HEIGHT
+    assert len(frames) == 3 and frames[0].shape[1] == 2 * 128 * k
+    assert frames[0].shape[0] > 2 * 96 * k + 15  # the legend below
     with OverlayRenderer(tmp_path / "res", ds) as r:
         assert [r.frame_iou(1, c) for c in range(4)] == ious[1]
         raw = [r.input_image(1, c) for c in range(4)]
     for c, cam in enumerate(cams):
-        cell = frames[1][96 * (c // 2):96 * (c // 2 + 1), 128 * (c % 2):128 * (c % 2 + 1)]
+        cell = frames[1][96 * k * (c // 2):96 * k * (c // 2 + 1),
+                         128 * k * (c % 2):128 * k * (c % 2 + 1)][1::k, 1::k]
         inside, far = _regions(_silhouette({"body": body}, P[1], cam), far_px=8)
         assert inside.sum() > 50 and far.sum() > 2000
         diff = np.abs(cell.astype(float) - raw[c].astype(float)).mean(axis=-1)

@@ -15,7 +15,8 @@ def add_arguments(p):
                    help="results folder (poses.npz, or frames.jsonl of an unfinished run)")
     p.add_argument("dataset", help="the dataset folder the result was tracked on")
     p.add_argument("--out", required=True,
-                   help="video file: .mp4 (MPEG-4; Motion JPEG .avi if unavailable) or .avi")
+                   help="video file: .mp4 (H.264 when an encoder is available, else MPEG-4 Part 2) "
+                        "or .avi (Motion JPEG)")
     p.add_argument("--camera", default="all",
                    help="camera index or name, a comma-separated list of them, or 'all'")
     p.add_argument("--fps", type=float, default=None,
@@ -47,8 +48,9 @@ def run(args):
     if Path(args.dataset).is_dir():  # a warning: the overlay of another dataset is still drawn
         check_same_dataset(read_provenance(args.result), args.dataset, args.result, force=True)
     quiet = logging.getLogger().getEffectiveLevel() > logging.WARNING
-    path = render_overlay(args.result, args.dataset, out, cameras=cameras,
-                          max_frames=args.max_frames, progress=not quiet, fps=args.fps,
-                          preset=args.dof)
-    print(f"{path}: overlay video written")
+    video = render_overlay(args.result, args.dataset, out, cameras=cameras,
+                           max_frames=args.max_frames, progress=not quiet, fps=args.fps,
+                           preset=args.dof)
+    print(f"{video.path}: overlay video written ({video.codec}, {video.frames} frames, "
+          f"{video.size[0]}x{video.size[1]})")
     return 0
