@@ -21,17 +21,10 @@ from gltrack.cli import main
 from gltrack.data.results import ResultsWriter
 from gltrack.export.bvh import params_to_bvh
 from gltrack.motion.bvh import write_bvh
-from trackdata import make_depth_dataset, smooth_motion
+from trackdata import DAZ, make_depth_dataset, smooth_motion
 
 REPO = Path(__file__).resolve().parents[1]
 
-# Daz-style joint names, which the BVH retargeter recognises (as in test_synth).
-_DAZ = {"pelvis": "hip", "spine_lower": "abdomen", "spine_upper": "chest", "neck": "neck",
-        "head": "head"}
-for _s in "lr":
-    for _a, _b in (("clavicle", "Collar"), ("shoulder", "Shldr"), ("elbow", "ForeArm"),
-                   ("wrist", "Hand"), ("hip", "Thigh"), ("knee", "Shin"), ("ankle", "Foot")):
-        _DAZ[f"{_s}_{_a}"] = _s + _b
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +38,8 @@ def base(tmp_path_factory):
             w.append(f, P[f], J[f], M[f], score=0.5)
         w.finish()
     clip = params_to_bvh(body, smooth_motion(body, 12, np.random.default_rng(0)), 30.0)
-    clip.names = [_DAZ[n] for n in clip.names]
-    clip.end_sites = {_DAZ[k]: v for k, v in clip.end_sites.items()}
+    clip.names = [DAZ[n] for n in clip.names]
+    clip.end_sites = {DAZ[k]: v for k, v in clip.end_sites.items()}
     write_bvh(root / "clip.bvh", clip)
     (root / "calib.toml").write_text("[cam_01]\nname = \"cam_01\"\nsize = [ 640, 480]\n")
     return root

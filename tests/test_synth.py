@@ -20,16 +20,10 @@ from gltrack.data.sim_multiview import iou
 from gltrack.motion.bvh import write_bvh
 from gltrack.export.bvh import params_to_bvh
 
+from trackdata import DAZ
+
 REPO = Path(__file__).resolve().parents[1]
 FPS = 30
-
-# Daz-style joint names: a convention the BVH retargeter recognises.
-_DAZ = {"pelvis": "hip", "spine_lower": "abdomen", "spine_upper": "chest", "neck": "neck",
-        "head": "head"}
-for _s in "lr":
-    for _a, _b in (("clavicle", "Collar"), ("shoulder", "Shldr"), ("elbow", "ForeArm"),
-                   ("wrist", "Hand"), ("hip", "Thigh"), ("knee", "Shin"), ("ankle", "Foot")):
-        _DAZ[f"{_s}_{_a}"] = _s + _b
 
 
 def _motion(T=12):
@@ -50,8 +44,8 @@ def _motion(T=12):
 def _write_clip(path, T=12):
     body, p = _motion(T)
     bvh = params_to_bvh(body, p, FPS)
-    bvh.names = [_DAZ[n] for n in bvh.names]
-    bvh.end_sites = {_DAZ[k]: v for k, v in bvh.end_sites.items()}
+    bvh.names = [DAZ[n] for n in bvh.names]
+    bvh.end_sites = {DAZ[k]: v for k, v in bvh.end_sites.items()}
     write_bvh(path, bvh)
     return path
 

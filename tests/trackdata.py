@@ -6,6 +6,15 @@ from gltrack.camera import depth_camera_sr4000
 from gltrack.data.dataset import DatasetWriter
 from gltrack.render import reference as ref
 
+#: Daz-style joint names (gltrack joint -> Daz), a convention the BVH retargeter recognises:
+#: BVH clips written with them test the retargeting path the CMU Daz files take.
+DAZ = {"pelvis": "hip", "spine_lower": "abdomen", "spine_upper": "chest", "neck": "neck",
+       "head": "head"}
+for _s in "lr":
+    for _a, _b in (("clavicle", "Collar"), ("shoulder", "Shldr"), ("elbow", "ForeArm"),
+                   ("wrist", "Hand"), ("hip", "Thigh"), ("knee", "Shin"), ("ankle", "Foot")):
+        DAZ[f"{_s}_{_a}"] = _s + _b
+
 
 def smooth_motion(body, n, rng, fps=30.0):
     """A slow walk forward with an arm raise and knee bends: (n, D) params."""

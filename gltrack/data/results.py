@@ -91,8 +91,8 @@ def _jsonable(obj):
     return obj
 
 
-def _fsync_dir(path):
-    # The rename itself is only durable once the directory entry is on disk.
+def fsync_dir(path):
+    """Flush ``path``'s directory entries: a rename is durable only once they are on disk."""
     try:
         fd = os.open(path, os.O_RDONLY)
     except OSError:
@@ -133,7 +133,7 @@ def _atomic_write(path, write):
         if isinstance(exc, OSError):
             raise _named_oserror(exc, path) from exc
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def _atomic_write_bytes(path, data):

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gltrack.data.results import fsync_dir
+
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.npz"
@@ -60,19 +62,6 @@ def _join(obj, arrays):
     if isinstance(obj, list):
         return [_join(v, arrays) for v in obj]
     return obj
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def save(out, method: str, frame: int, params, tracker, watch, decided: dict) -> bool:
@@ -112,7 +101,7 @@ def save(out, method: str, frame: int, params, tracker, watch, decided: dict) ->
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
     return True
 
 
