@@ -244,7 +244,7 @@ def test_a_tie_between_twins_goes_to_the_one_walking_forwards():
     facing_away = Walker(np.pi, 0.08, 100.0)  # walks backwards, scores lowest
     facing_on = Walker(0.0, 0.08, 100.5)      # faces +Z, the way it travels
     assert _decide([facing_away, facing_on], range(10), [])[0] == 1
-    assert _decide([Walker(np.pi, 0.08, 100.0), Walker(0.0, 0.08, 105.0)], range(10), [])[0] == 0
+    assert _decide([Walker(np.pi, 0.08, 100.0), Walker(0.0, 0.08, 115.0)], range(10), [])[0] == 0
     assert _decide([Walker(np.pi, 0.0, 100.0), Walker(0.0, 0.0, 100.5)], range(10), [])[0] == 0
 
 
