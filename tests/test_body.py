@@ -35,7 +35,7 @@ def test_skeleton_validation():
 
 def test_presets_sizes(skel):
     sizes = {p: make_dofs(skel, p).size for p in PRESETS}
-    assert sizes == {"full": 48, "38": 37, "25": 25}
+    assert sizes == {"full": 48, "38": 37, "25": 25, "upper": 36}
     with pytest.raises(ValueError, match="unknown DOF preset"):
         make_dofs(skel, "99")
     d = make_dofs(skel, "25")
