@@ -65,7 +65,7 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
     from tqdm import tqdm
 
     from gltrack.data.dataset import META, Dataset
-    from gltrack.data.results import load_body_record, load_results
+    from gltrack.data.results import _atomic_write_bytes, load_body_record, load_results
     from gltrack.render.reference import skin_vertices
 
     t0 = time.perf_counter()
@@ -155,9 +155,7 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
     masks = meta.get("masks") if isinstance(meta.get("masks"), dict) else {}
     masks["refined"] = record
     meta["masks"] = masks
-    tmp_meta = meta_path.with_name(f".{META}.tmp")
-    tmp_meta.write_text(json.dumps(meta, indent=2) + "\n")
-    os.replace(tmp_meta, meta_path)
+    _atomic_write_bytes(meta_path, (json.dumps(meta, indent=2) + "\n").encode())
     log.info("refined the masks of %d frames x %d cameras in %.0f s; foreground fraction %s -> %s",
              len(by_frame), len(cams), record["seconds"], record["foreground_fraction_before"],
              record["foreground_fraction_after"])

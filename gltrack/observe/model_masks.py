@@ -30,6 +30,8 @@ import logging
 import cv2
 import numpy as np
 
+from .foreground import _dilate, _erode
+
 log = logging.getLogger(__name__)
 
 #: supersampling of :func:`model_silhouette` (per axis)
@@ -85,11 +87,6 @@ def model_silhouette(camera, vertices: np.ndarray, faces: np.ndarray) -> np.ndar
     return area >= 0.5
 
 
-def _disk(radius: int) -> np.ndarray:
-    r = max(int(radius), 0)
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-
-
 def refine_with_model(image: np.ndarray, mask: np.ndarray, model: np.ndarray, *, band_px: int,
                       reach_px: int, core_px: int, iterations: int = 3) -> np.ndarray:
     """One camera's foreground from its sequence mask and the model's silhouette.
@@ -114,10 +111,9 @@ def refine_with_model(image: np.ndarray, mask: np.ndarray, model: np.ndarray, *,
                          "must have the same size")
     if not model.any():
         return mask.copy()
-    m8 = model.astype(np.uint8)
-    band = cv2.dilate(m8, _disk(band_px)) > 0
-    reach = mask & (cv2.dilate(m8, _disk(reach_px)) > 0)
-    core = cv2.erode(m8, _disk(core_px)) > 0
+    band = _dilate(model, band_px)
+    reach = mask & _dilate(model, reach_px)
+    core = _erode(model, core_px)
     seed = np.full(mask.shape, cv2.GC_BGD, np.uint8)
     seed[band] = cv2.GC_PR_BGD
     seed[model | reach] = cv2.GC_PR_FGD
