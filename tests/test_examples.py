@@ -1,4 +1,5 @@
 """Every example runs headless (each in its own process: it makes its own GL context)."""
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,8 +11,11 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("[0-9]
 
 @pytest.mark.parametrize("script", EXAMPLES, ids=[p.stem for p in EXAMPLES])
 def test_example_runs(script, tmp_path):
+    # The examples keep their output in a fresh temporary folder for the user to look at; under the
+    # test it goes into pytest's own tmp_path (TMPDIR), which pytest prunes, not into /tmp for good.
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
     res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600,
-                         cwd=tmp_path)
+                         cwd=tmp_path, env=env)
     assert res.returncode == 0, res.stdout + res.stderr
     assert res.stdout.strip(), "an example must say what it did"
 
