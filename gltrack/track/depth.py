@@ -233,13 +233,15 @@ class HillClimbDepthTracker(Tracker):
                           shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
                           lower=d.lower, upper=d.upper, passes=self.opt.passes)
 
-    def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None):
+    def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None,
+               stages=None):
         """Hill-climb from ``x_start`` under the prior centred on ``x_pred`` (weighted by
         ``prior_weight``, default the option).
 
         One coarse-to-fine sweep down the kinematic chain, then ``refine_passes`` (or ``extra``)
         sweeps over the limbs only at half the step (the limbs were searched while the torso
         was still moving), each followed by a torso re-check at a quarter of the step.
+        ``stages`` ("parts" or "chain") overrides the option of that name.
 
         Returns
         -------
@@ -248,7 +250,7 @@ class HillClimbDepthTracker(Tracker):
         cost = self.objective(x_pred, prior_weight)
         steps = self.search_steps() if steps is None else np.asarray(steps)
         levels = self.opt.levels if levels is None else levels
-        if self.opt.stages == "parts":
+        if (stages or self.opt.stages) == "parts":
             return self._refine_stages(cost, x_start, steps, levels,
                                        self.opt.refine_passes if extra is None else extra)
         evals = calls = 0
@@ -484,7 +486,10 @@ class HillClimbDepthTracker(Tracker):
             wide = 6.0 * self.sigma
             wide[:3] = 0.3
             for _ in range(3):  # no prior: there is no motion to predict from yet
-                res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0)
+                # DOF by DOF: a global search from a library pose moves far, and there the
+                # stages' Jacobi steps fell short (a side-on body turned 90 degrees: 0.29 m
+                # mean joint error against 0.01 m); one frame, so its calls do not matter
+                res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0, stages="chain")
                 x, wide = res.x, wide * 0.5
             X.append(x)
             costs.append(float(res.cost))
