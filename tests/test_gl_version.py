@@ -81,3 +81,22 @@ def test_target_memory_by_renderer_and_environment():
     assert target_memory("llvmpipe", "512") == 512 << 20
     with pytest.raises(ValueError, match="GLTRACK_GPU_MEMORY_MB"):
         target_memory("llvmpipe", "-1")
+
+
+def test_pyrender_import_sets_pyglet_headless():
+    """pyrender imports pyglet, which needs an X server unless PYGLET_HEADLESS is set before
+    the import (a headless GPU machine failed with XRenderFindVisualFormat)."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys\n"
+            "os.environ.pop('PYGLET_HEADLESS', None)\n"
+            "from gltrack.render.pyrender_egl import import_pyrender\n"
+            "import_pyrender('nothing')\n"
+            "print(os.environ.get('PYGLET_HEADLESS'), os.environ.get('PYOPENGL_PLATFORM'))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    if res.returncode != 0 and "No module named 'pyrender'" in res.stderr:
+        pytest.skip("pyrender is not installed")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["1", "egl"]
