@@ -294,6 +294,7 @@ def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
         r1 = tr.refine(x0, x0)
         assert r3.evaluations == r1.evaluations + evals
         # stages="parts": the three headings are lanes of the root stage's calls
+        tr.opt.heading_hypotheses = 3
         lanes = tr.heading_starts(x0, steps)
         assert lanes.shape == (3, x0.size) and np.array_equal(lanes[1], x0)
         r = tr._stage_climb(cost, lanes, [tr.root_dofs], steps, tr.opt.levels)
