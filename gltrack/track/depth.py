@@ -118,8 +118,9 @@ class DepthOptions(Options):
         share one climb), see :func:`gltrack.sample.hillclimb.stage_climb`: hc+ep 13-17 calls
         per frame. Not the default: measured (bench depth --quick, oracle, llvmpipe) hc+ep mean
         marker error walk 0.043 -> 0.040 m, but hop 0.049 -> 0.094 m and salsa 0.044 -> 0.056 m
-        (the Jacobi steps of coupled DOFs fall behind fast motion); on llvmpipe the time goes
-        into the candidates, not the calls, so it bought no speed there either
+        (the Jacobi steps of coupled DOFs fall behind fast motion; climbing the root stage
+        again after the heading lanes gave hop 0.059 m, salsa 0.065 m); on llvmpipe the time
+        goes into the candidates, not the calls, so it bought no speed there either
     """
 
     tile: int = 64
