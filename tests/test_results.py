@@ -245,3 +245,34 @@ def test_identity_frame_records_nothing(tmp_path):
     assert "world" not in json.loads((tmp_path / "res" / "run.json").read_text())
     assert "R_user_from_internal" not in np.load(tmp_path / "res" / "poses.npz").files
     assert load_results(tmp_path / "res")["world"] is None
+
+
+def test_engine_calls_recorded_and_old_logs_still_resume(tmp_path):
+    """Per-frame engine calls go into frames.jsonl and their total into timing.json; a log
+    written before engine accounting (records without the key) still resumes, and the total
+    then says how many frames were counted."""
+    out = tmp_path / "res"
+    w = ResultsWriter(out, "hc", JOINTS, MARKERS)
+    write_frames(w, range(3))  # the old writer: no counts
+    w.close()
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    assert all("engine_calls" not in json.loads(line) for line in lines)
+    w = ResultsWriter(out, "hc", JOINTS, MARKERS, resume=True)
+    assert w.done_frames == [0, 1, 2]
+    for f in (3, 4):
+        p, j, m = frame_data(f)
+        w.append(f, p, j, m, score=0.0, evaluations=50, seconds=0.5, engine_calls=10 + f,
+                 engine_seconds=0.25)
+    timing = w.finish()
+    assert timing["engine_calls"] == 13 + 14 and timing["engine_calls_frames"] == 2
+    assert timing["engine_seconds"] == pytest.approx(0.5)
+    last = json.loads((out / "frames.jsonl").read_text().splitlines()[-1])
+    assert last["engine_calls"] == 14 and last["engine_seconds"] == 0.25
+    assert load_results(out)["frame"].tolist() == [0, 1, 2, 3, 4]
+    # a fully counted run has no partial-count note
+    out2 = tmp_path / "res2"
+    w = ResultsWriter(out2, "hc", JOINTS, MARKERS)
+    p, j, m = frame_data(0)
+    w.append(0, p, j, m, evaluations=5, seconds=0.1, engine_calls=7)
+    timing = w.finish()
+    assert timing["engine_calls"] == 7 and "engine_calls_frames" not in timing

@@ -68,6 +68,9 @@ def test_hc_ep_recovers_a_perturbed_arm_better_than_hc(ds, tmp_path):
     assert m["frac_markers_failed"] < 0.05
     timing = json.loads((hcep / "timing.json").read_text())
     assert timing["frames"] == N
+    # every frame's engine calls are recorded (issue 15)
+    calls = [json.loads(line)["engine_calls"] for line in (hcep / "frames.jsonl").open()]
+    assert len(calls) == N and min(calls) > 0 and timing["engine_calls"] == sum(calls)
     # a run without perturbation differs: the hook did something
     plain = _track(ds, "hc+ep", tmp_path / "plain", tmp_path)
     assert _arm_error(plain, ds)[PERTURB] < e_ep[PERTURB] or e_ep[PERTURB] > 0.05
@@ -256,7 +259,7 @@ def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
     d = Dataset.open(ds)
     body = body_from_meta(d.body, None)
     x0 = d.groundtruth()["params"][0]
-    tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(heading_hypotheses=3))
+    tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(heading_hypotheses=3, stages="chain"))
     try:
         tr.start(0, x0)
         yaw = body.dofs.index("pelvis_ry")
@@ -290,6 +293,19 @@ def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
         tr.opt.heading_hypotheses = 1
         r1 = tr.refine(x0, x0)
         assert r3.evaluations == r1.evaluations + evals
+        # stages="parts": the three headings are lanes of the root stage's calls
+        tr.opt.heading_hypotheses = 3
+        lanes = tr.heading_starts(x0, steps)
+        assert lanes.shape == (3, x0.size) and np.array_equal(lanes[1], x0)
+        r = tr._stage_climb(cost, lanes, [tr.root_dofs], steps, tr.opt.levels)
+        x = r.X[tr.pick_heading(r.cost)]
+        assert abs(x[yaw] - target[yaw]) < 0.2 * tr.sigma[yaw]
+        assert abs(x[0] - target[0]) < 0.2 * tr.sigma[0]
+        assert r.calls <= tr.opt.levels + 1 < single.calls
+        tr.opt.stages = "parts"
+        rp = tr.refine(x0, x0)
+        # one call per stage level, plus at most one check of a combined move per climb
+        assert rp.calls <= len(tr.stage_dofs) * tr.opt.levels + 2
     finally:
         tr.close()
 

@@ -12,8 +12,9 @@ ranges avoid the clips' calibration jumps and the salsa's mocap glitches near so
 
 with the trackers' default options (:class:`gltrack.track.ep.EvidenceOptions`), and scored by
 :func:`gltrack.eval.metrics.evaluate`: marker mean / max error (metres), fractions of markers
-tracked (<= 0.1 m) and failed (>= 0.3 m), mean joint error (mm), frames per second and candidate
-evaluations per frame.
+tracked (<= 0.1 m) and failed (>= 0.3 m), mean joint error (mm), frames per second, candidate
+evaluations per frame, and how the engine was used: scoring-engine calls per frame, candidates
+per call and the share of tracking time spent in the engine (:func:`engine_use`).
 
 Recovery test (smoothed likelihood, ``hc`` and ``hc+ep``): at frame :data:`PERTURB_AT` the
 tracker's state of one arm is shifted by 0.5 rad on every DOF (a runner hook,
@@ -121,7 +122,31 @@ def _run(ds, method, opts, out, ctx, hooks=(), protocol=ORACLE, init=None):
         "mean_joint_error_mm")}
     row.update(fps=float(timing.get("fps") or frames / max(wall, 1e-9)),
                evaluations_per_frame=float(timing["evaluations"]) / max(frames, 1), frames=frames)
+    row.update(engine_use(timing))
     return row, res, gt
+
+
+def engine_use(timing: dict) -> dict:
+    """How a run used the scoring engine, from its ``timing.json`` contents.
+
+    Returns
+    -------
+    dict: ``calls_per_frame``, ``candidates_per_call`` (evaluations over calls) and
+    ``engine_share`` (time in the engine over tracking time), each None when not counted
+    """
+    frames = max(int(timing.get("frames") or 0), 1)
+    calls = timing.get("engine_calls")
+    secs, eng = timing.get("seconds"), timing.get("engine_seconds")
+    return {"calls_per_frame": None if calls is None else float(calls) / frames,
+            "candidates_per_call": (float(timing["evaluations"]) / calls if calls else None),
+            "engine_share": float(eng) / secs if eng is not None and secs else None}
+
+
+def _use_columns(r) -> str:
+    def f(v, fmt):
+        return format(v, fmt) if v is not None else format("-", fmt[:-2] + "s")
+    return (f" {f(r.get('calls_per_frame'), '6.1f')} {f(r.get('candidates_per_call'), '6.1f')}"
+            f" {f(None if r.get('engine_share') is None else 100 * r['engine_share'], '5.0f')}")
 
 
 def limb_error(res, gt, part: str) -> np.ndarray:
@@ -339,7 +364,8 @@ def format_table(res: dict) -> str:
     lines = [f"machine:  {res['machine']}", f"renderer: {res.get('renderer')}",
              f"frames per clip: {res['frames']} at {res['fps_data']:g} frames/s", "",
              f"{'clip':6s} {'method':6s} {'lik':8s} {'mean m':>7s} {'max m':>7s} {'trk':>6s} "
-             f"{'fail':>6s} {'joint mm':>8s} {'fps':>6s} {'eval/f':>7s}"]
+             f"{'fail':>6s} {'joint mm':>8s} {'fps':>6s} {'eval/f':>7s} {'call/f':>6s} {'cand/c':>6s} "
+             f"{'eng%':>5s}"]
     for clip, e in res["clips"].items():
         if "skipped" in e:
             lines.append(f"{clip:6s} skipped: {e['skipped']}")
@@ -348,7 +374,8 @@ def format_table(res: dict) -> str:
             m, lik = key.split("/")
             lines.append(f"{clip:6s} {m:6s} {lik:8s} {r['marker_mean_m']:7.3f} {r['marker_max_m']:7.3f} "
                          f"{r['frac_markers_tracked']:6.3f} {r['frac_markers_failed']:6.3f} "
-                         f"{r['mean_joint_error_mm']:8.1f} {r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}")
+                         f"{r['mean_joint_error_mm']:8.1f} {r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}"
+                         + _use_columns(r))
         for m, r in e["recovery"].items():
             lines.append(f"{clip:6s} {m:6s} recovery after {r['radians']} rad on {r['part']} at "
                          f"frame {r['perturbed_frame']}: {r['text']} (arm error after it "
@@ -363,7 +390,7 @@ def format_table(res: dict) -> str:
             lines.append(f"{clip:6s} {m:6s} {'honest':8s} {r['marker_mean_m']:7.3f} "
                          f"{r['marker_max_m']:7.3f} {r['frac_markers_tracked']:6.3f} "
                          f"{r['frac_markers_failed']:6.3f} {r['mean_joint_error_mm']:8.1f} "
-                         f"{r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}")
+                         f"{r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}" + _use_columns(r))
         b = h.get("body_error")
         if b:
             lines.append(f"{clip:6s} honest body estimate: bones {b['mean_bone_mm']:.0f} mm mean, "

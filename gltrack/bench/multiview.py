@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_name, shared_dir
-from .depth import WRONG_START_RAD, settled_frames
+from .depth import WRONG_START_RAD, engine_use, settled_frames
 from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
@@ -198,7 +198,8 @@ def _run(ds_path, method, options, out, preset, start_pose, ctx, seed,
             "max_frame_error_mm": round(float(np.nanmax(m["per_frame"]["joint_error_mm"])), 1),
             "joint_error_mm": [round(float(e), 1) for e in m["per_frame"]["joint_error_mm"]],
             "evaluations_per_frame": round(int(timing.get("evaluations", 0)) / n),
-            "seconds_per_frame": round(secs / n, 2), "options": options}
+            "seconds_per_frame": round(secs / n, 2), "options": options,
+            **{k: (None if v is None else round(v, 3)) for k, v in engine_use(timing).items()}}
 
 
 def _bench_honest(shared, bvh, src, work, budget, ctx, seed) -> dict:
@@ -394,6 +395,13 @@ def _bench_environment(shared, work, budget, n_frames, ctx, seed) -> dict:
     return out
 
 
+def _use(run: dict) -> str:
+    c, k, e = (run.get(x) for x in ("calls_per_frame", "candidates_per_call", "engine_share"))
+    if c is None:
+        return "-"
+    return f"{c:.0f}/{k or 0:.0f}/{100 * (e or 0):.0f}% ({run['seconds_per_frame']:.2f} s/f)"
+
+
 def table(res: dict) -> str:
     """A plain-text table of :func:`bench_multiview`'s figures (mean joint error, mm)."""
     lines = [f"machine:  {res.get('machine', '?')}", f"renderer: {res.get('renderer', '?')}",
@@ -407,6 +415,13 @@ def table(res: dict) -> str:
                 continue
             lines.append(f"{clip:8s} {preset:5s} {r['static_mm']:7.1f} " + " ".join(
                 f"{runs[n]['mean_joint_error_mm']:7.1f}" if n in runs else "    n/a" for n in names))
+    lines.append("engine use (calls per frame / candidates per call / % of time in the engine):")
+    for clip, r in res.get("clips", {}).items():
+        for preset, runs in r.items():
+            if preset in ("static_mm", "honest"):
+                continue
+            lines.append(f"{clip:8s} {preset:5s} " + "  ".join(
+                f"{n} {_use(runs[n])}" for n in names if n in runs))
     for clip, r in res.get("clips", {}).items():
         h = r.get("honest")
         if not h:

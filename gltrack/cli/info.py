@@ -18,9 +18,15 @@ def run(args):
     ctx = create_context(args.backend, args.device)
     info = capabilities(ctx).as_dict()
     try:
-        from gltrack.render.engine import choose_reduction
+        import os
+
+        from gltrack.render.engine import batch_side, choose_reduction, target_memory
 
         info["reduction"] = choose_reduction(ctx)
+        # the largest batch the engine scores in one pass at the depth trackers' 64-pixel tile
+        side = batch_side(info["max_texture_size"], 64,
+                          target_memory(info["renderer"], os.environ.get("GLTRACK_GPU_MEMORY_MB")))
+        info["max_batch_tile64"] = side * side
     except ImportError:
         pass
     if args.json:

@@ -11,11 +11,15 @@ Layout::
                     that extends the range records the new stop frame
       frames.jsonl  one JSON object per finished frame, appended and fsync'ed as it is tracked:
                     {"frame", "params", "joints", "markers", "score", "evaluations", "seconds"}
+                    plus, when counted, "engine_calls" and "engine_seconds" of the frame
                     plus, when the tracker gives any, "info": its diagnostics of the frame
       poses.npz     params (N,D), joints (N,J,3) m, joint_names (J,), markers (N,M,3) m,
                     marker_names (M,), score (N,), method (), frame (N,), evaluations (N,),
                     seconds (N,)                        written by ResultsWriter.finish()
-      timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total} and, when
+      timing.json   {"frames": N, "seconds": s, "fps": N/s, "evaluations": total,
+                    "engine_calls": total scoring-engine calls (when frames counted them;
+                    "engine_calls_frames": how many did, when not all), "engine_seconds": time
+                    in the engine (when timed)} and, when
                     the tracker reports per-stage times (info "stage_seconds"), "stage_seconds":
                     their sums over the frames
       body.json     the body the tracker used (:func:`gltrack.body.model.body_record`: skeleton,
@@ -301,6 +305,10 @@ def _parse_record(line, where, n_joints, n_markers):
             "seconds": float(rec["seconds"]),
             "info": rec["info"] if isinstance(rec.get("info"), dict) else {},
         }
+        # optional (frames written before engine accounting have neither)
+        for key, kind in (("engine_calls", int), ("engine_seconds", float)):
+            if rec.get(key) is not None:
+                out[key] = kind(rec[key])
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: bad field value: {exc}") from None
     return out
@@ -524,7 +532,7 @@ class ResultsWriter:
         return self._records[-1] if self._records else None
 
     def append(self, frame, params, joints, markers=None, score=0.0, evaluations=0, seconds=0.0,
-               info=None):
+               info=None, engine_calls=None, engine_seconds=None):
         """Record one finished frame and make it durable before returning.
 
         Parameters
@@ -544,6 +552,10 @@ class ResultsWriter:
             Wall time spent on this frame.
         info : dict or None
             The tracker's JSON-able diagnostics of the frame (kept in ``frames.jsonl``).
+        engine_calls : int or None
+            Scoring-engine calls made for this frame (``None``: not counted, left out).
+        engine_seconds : float or None
+            Wall time of those calls (seconds; ``None``: left out).
         """
         frame = int(frame)
         if frame < 0:
@@ -563,6 +575,10 @@ class ResultsWriter:
             joints, markers = joints @ self._R.T, markers @ self._R.T
         rec = {"frame": frame, "params": params, "joints": joints, "markers": markers,
                "score": float(score), "evaluations": int(evaluations), "seconds": float(seconds)}
+        if engine_calls is not None:
+            rec["engine_calls"] = int(engine_calls)
+        if engine_seconds is not None:
+            rec["engine_seconds"] = float(engine_seconds)
         if info:
             rec["info"] = _jsonable(info)
         line = json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v)
@@ -599,6 +615,16 @@ class ResultsWriter:
         timing = {"frames": n, "seconds": seconds,
                   "fps": n / seconds if seconds > 0 else None,
                   "evaluations": int(arrays["evaluations"].sum())}
+        # frames of a run resumed from a log written before engine accounting have no count:
+        # the total is over the frames that have one, and says how many did when not all
+        counted = [r for r in self._records if r.get("engine_calls") is not None]
+        if counted:
+            timing["engine_calls"] = int(sum(r["engine_calls"] for r in counted))
+            if len(counted) < n:
+                timing["engine_calls_frames"] = len(counted)
+        timed = [r["engine_seconds"] for r in self._records if r.get("engine_seconds") is not None]
+        if timed:
+            timing["engine_seconds"] = float(sum(timed))
         stages = {}
         for rec in self._records:
             for k, v in rec.get("info", {}).get("stage_seconds", {}).items():

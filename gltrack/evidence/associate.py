@@ -81,7 +81,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                          cost_best: float | None = None, lower=None, upper=None,
                          max_passes: int = 3, ik_kwargs: dict | None = None,
                          margin: float = 0.0, control: bool = False,
-                         reach: dict | None = None, nearest: bool = False) -> EPResult:
+                         reach: dict | None = None, nearest: bool = False,
+                         refine_many=None) -> EPResult:
     """Greedy evidence propagation from classified part detections.
 
     Parameters
@@ -120,6 +121,12 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         climbing cannot undo (walk clip: one such move took the error from 0.08 to 0.22 m).
         A part the tracker has really lost is still matched when its sibling is tracked, since
         the sibling's own detection is then explained and pruned.
+    refine_many : callable ``X (K, D) -> (X (K, D), costs (K,), evaluations, calls)``,
+        optional: refines all proposals of a pass together (one batch of engine calls for all,
+        e.g. :func:`gltrack.sample.hillclimb.stage_climb`) instead of ``hill_climb_fn`` one by
+        one. Every proposal of a pass then starts from the same best pose, so a pass accepts
+        only the best of them (the others were proposed from a pose that is no longer the
+        best); the next pass proposes again from the new one.
 
     Returns
     -------
@@ -170,6 +177,27 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             evals += int(e)
             if float(c_c) < cost_best:
                 x_best, cost_best = np.asarray(x_c, dtype=np.float64).ravel(), float(c_c)
+        if refine_many is not None and cands:
+            iks = [ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
+                         dofs=None if chains is None else chains[name], lower=lower,
+                         upper=upper, **ik_kwargs) for name, j in cands]
+            X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]))
+            evals += int(e)
+            c_new = np.asarray(c_new, dtype=np.float64)
+            b = int(np.argmin(c_new))  # the first of equal costs: the detector's order
+            if c_new[b] < cost_best - margin:
+                name, j = cands[b]
+                log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j,
+                          det.classes[j], cost_best, c_new[b])
+                accepted.append({"part": name, "detection": int(j), "class": det.classes[j],
+                                 "cost_before": cost_best, "cost_after": float(c_new[b]),
+                                 "ik_residual": float(np.linalg.norm(iks[b].residual))})
+                x_best = np.asarray(X_new[b], dtype=np.float64).ravel()
+                cost_best = float(c_new[b])
+                used[j] = True
+                improved = True
+                used |= ~prune_explained(det.points, parts_of(x_best), prune_radius)
+            cands = []
         for name, j in cands:
             if used[j]:
                 continue

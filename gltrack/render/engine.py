@@ -33,6 +33,7 @@ be undistorted before they are handed over.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass
 
@@ -51,6 +52,99 @@ CHANNELS = ("depth", "silhouette", "appearance", "custom", "model")
 SLOTS = {"depth": 0, "silhouette": 1, "appearance": 2, "custom": 3, "model": 0}
 _GL_CLIP_DISTANCE0 = 0x3000
 _TRI_BITS_WIDTH = 1024
+#: Bytes of render target per grid pixel: depth (4) + depth and triangle id (8) + depth buffer
+#: (4) + RGBA32F cost with its mipmaps (16 * 4/3), rounded up.
+TARGET_BYTES_PER_PIXEL = 40
+#: Render-target memory one grid may take (bytes) when ``GLTRACK_GPU_MEMORY_MB`` is unset: a
+#: software renderer draws into system memory shared with everything else (256 MiB keeps the
+#: 2048-pixel grid it always had); a GPU has gigabytes of its own.
+SOFTWARE_TARGET_BYTES = 256 << 20
+GPU_TARGET_BYTES = 2 << 30
+#: Most grid sizes whose render targets are kept alive at once (least recently used go first).
+MAX_TARGETS = 6
+_SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "swiftshader", "lavapipe")
+
+
+def batch_side(max_texture_size: int, tile: int, memory_bytes: int,
+               bytes_per_pixel: int = TARGET_BYTES_PER_PIXEL, max_texture: int | None = None) -> int:
+    """Tiles along a side of the largest batch grid the device allows (a power of two).
+
+    Parameters
+    ----------
+    max_texture_size : int, the context's ``GL_MAX_TEXTURE_SIZE`` (pixels)
+    tile : int, tile side (pixels)
+    memory_bytes : int, render-target memory one grid may take
+    bytes_per_pixel : int, render-target bytes per grid pixel
+    max_texture : int, optional, a further cap on the grid side (pixels)
+
+    Returns
+    -------
+    int >= 1; a batch holds at most its square (:func:`grid_for` chunks larger ones)
+    """
+    side = int(max_texture_size)
+    if max_texture is not None:
+        side = min(side, int(max_texture))
+    side = min(side, int(np.sqrt(max(int(memory_bytes), 0) / float(bytes_per_pixel))))
+    return max(1, 1 << int(np.log2(max(side // int(tile), 1))))
+
+
+def target_memory(renderer: str, env: str | None = None) -> int:
+    """Render-target bytes one grid may take on ``renderer`` (``GL_RENDERER``).
+
+    Parameters
+    ----------
+    renderer : str
+    env : str, optional, ``GLTRACK_GPU_MEMORY_MB`` (megabytes) when set; wins
+
+    Raises
+    ------
+    ValueError
+        ``env`` is not a positive number.
+    """
+    if env not in (None, ""):
+        try:
+            mb = float(env)
+        except ValueError:
+            mb = -1.0
+        if not mb > 0:
+            raise ValueError(f"GLTRACK_GPU_MEMORY_MB must be a positive number of megabytes, "
+                             f"got {env!r}")
+        return int(mb * (1 << 20))
+    soft = any(k in str(renderer).lower() for k in _SOFTWARE_RENDERERS)
+    return SOFTWARE_TARGET_BYTES if soft else GPU_TARGET_BYTES
+
+
+@dataclass
+class EngineStats:
+    """Process-wide count of scoring-engine calls (:meth:`ScoringEngine.score`).
+
+    Why process-wide: the trackers reach the engine through likelihood objects of their own, and
+    the runner and the benches account calls per frame without knowing them; read the counters
+    before and after the work to account (:meth:`snapshot`).
+
+    Attributes
+    ----------
+    calls : int, ``score`` calls
+    candidates : int, candidate poses scored
+    seconds : float, wall time inside ``score`` (upload, render, reduce, read back)
+    """
+
+    calls: int = 0
+    candidates: int = 0
+    seconds: float = 0.0
+
+    def snapshot(self) -> tuple[int, int, float]:
+        """(calls, candidates, seconds) so far."""
+        return self.calls, self.candidates, self.seconds
+
+    def since(self, snap) -> dict:
+        """Counts since ``snap`` (:meth:`snapshot`): ``calls``, ``candidates``, ``seconds``."""
+        return {"calls": self.calls - snap[0], "candidates": self.candidates - snap[1],
+                "seconds": self.seconds - snap[2]}
+
+
+#: The counters of every engine in this process.
+ENGINE_STATS = EngineStats()
 
 
 @dataclass(frozen=True)
@@ -153,9 +247,11 @@ class ScoringEngine:
     cameras : list of gltrack.camera.Camera
     tile : int
         Tile side in pixels, a power of two (16..512). Observations are resampled to it.
-    max_texture : int
-        Largest grid texture side; batches are chunked so the grid fits (memory stays bounded:
-        about 4 textures of this size per camera). Clamped to GL_MAX_TEXTURE_SIZE.
+    max_texture : int, optional
+        Largest grid texture side; batches are chunked so the grid fits. None (default): sized
+        to the device (:func:`batch_side`): ``GL_MAX_TEXTURE_SIZE`` and a render-target memory
+        budget (:func:`target_memory`; ``GLTRACK_GPU_MEMORY_MB`` sets it). Always clamped to
+        ``GL_MAX_TEXTURE_SIZE``.
     reduction : {"auto", "mipmap", "compute", "fastest"}
         "auto": "compute" where the context has GL 4.3, else "mipmap" (the same on every run);
         "fastest" times both on the first batch and keeps the faster (the choice may differ
@@ -170,7 +266,7 @@ class ScoringEngine:
     """
 
     def __init__(self, ctx: moderngl.Context, mesh: BodyMesh, n_bones: int, cameras, *, tile: int = 64,
-                 max_texture: int = 2048, reduction: str = "auto",
+                 max_texture: int | None = None, reduction: str = "auto",
                  depth_params: DepthCostParams = DepthCostParams(), custom: CustomCost | None = None,
                  near: float = 0.05, far: float = 50.0, cull_back_faces: bool = True,
                  programs: ProgramCache | None = None):
@@ -195,11 +291,12 @@ class ScoringEngine:
         self.near, self.far = float(near), float(far)
         self.cull_back_faces = bool(cull_back_faces)
         limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096))
-        side = min(int(max_texture), limit)
-        self.max_tiles_side = max(1, 1 << int(np.log2(max(side // self.tile, 1))))
+        memory = target_memory(ctx.info.get("GL_RENDERER", ""), os.environ.get("GLTRACK_GPU_MEMORY_MB"))
+        self._memory = memory
+        self.max_tiles_side = batch_side(limit, self.tile, memory, max_texture=max_texture)
         self.max_batch = self.max_tiles_side * self.max_tiles_side
         if reduction in ("auto", "fastest"):
-            self.reduction = "compute" if ctx.version_code >= 430 else "mipmap"
+            self.reduction = choose_reduction(ctx)
         else:
             self.reduction = reduction
         self._auto_pending = reduction == "fastest" and ctx.version_code >= 430
@@ -252,6 +349,7 @@ class ScoringEngine:
         """Render targets for a grid, cached by grid size."""
         key = (cols, rows)
         if key in self._targets:
+            self._targets[key] = self._targets.pop(key)  # most recently used last
             return self._targets[key]
         ctx, W, H = self.ctx, cols * self.tile, rows * self.tile
         park_framebuffer(ctx)  # whatever is bound may be released by other code later
@@ -273,8 +371,15 @@ class ScoringEngine:
         sums = ctx.buffer(reserve=cols * rows * 16) if ctx.version_code >= 430 else None
         t = dict(z=z, zt=zt, depth=depth, fbo=fbo, fbo_z=fbo_z, cost=cost, cost_fbo=cost_fbo, bones=bones,
                  sums=sums, levels=levels, W=W, H=H)
-        # Keep at most two grid sizes alive: memory stays bounded whatever batch sizes come.
-        if len(self._targets) >= 2:
+        # Keep the most recently used grid sizes within the render-target budget (and at most
+        # MAX_TARGETS): memory stays bounded whatever batch sizes come, and a tracker that
+        # alternates between a few batch sizes (the stages of a climb, its lanes) does not
+        # re-allocate its targets on every call.
+        def size(k):
+            return k[0] * k[1] * self.tile * self.tile * TARGET_BYTES_PER_PIXEL
+
+        while self._targets and (len(self._targets) >= MAX_TARGETS or
+                                 size(key) + sum(size(k) for k in self._targets) > self._memory):
             old_key = next(iter(self._targets))
             self._release_target(self._targets.pop(old_key))
         self._targets[key] = t
@@ -425,12 +530,16 @@ class ScoringEngine:
                 missing.append("appearance (needs set_masks for the blocking mask)")
             if missing:
                 raise ValueError(f"camera {v.camera.name!r}: no observation uploaded for {missing}")
+        t0 = time.perf_counter()
         N = S.shape[0]
         out = np.zeros((N, len(self.views), 4))
         S = np.ascontiguousarray(S, dtype=np.float32)
         for start in range(0, N, self.max_batch):
             out[start:start + self.max_batch] = self._score_batch(S[start:start + self.max_batch], channels)
         self.evaluations += N
+        ENGINE_STATS.calls += 1
+        ENGINE_STATS.candidates += N
+        ENGINE_STATS.seconds += time.perf_counter() - t0
         return out
 
     def _score_batch(self, S, channels):

@@ -137,3 +137,143 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
     if cost is None:
         cost = float(call(x[None])[0])
     return HillClimbResult(x, cost, evals, calls)
+
+
+@dataclass
+class StageClimbResult:
+    """Outcome of :func:`stage_climb`.
+
+    Attributes
+    ----------
+    X : (K, D) float64, best pose of each lane
+    cost : (K,) float64, ``cost_fn`` of each row of ``X``
+    evaluations : int, candidates passed to ``cost_fn`` (rows over all calls, all lanes)
+    calls : int, calls of ``cost_fn``
+    """
+
+    X: np.ndarray
+    cost: np.ndarray
+    evaluations: int
+    calls: int
+
+
+def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
+                shrink: float = 0.4, lower=None, upper=None, cost0=None) -> StageClimbResult:
+    """Coarse-to-fine search of K independent start poses, one ``cost_fn`` call per stage level.
+
+    Like :func:`hill_climb` with every entry of ``stages`` a batched group, with two differences
+    that make a whole stage one call:
+
+    * all dims of a stage are searched in one batch (each varied alone about the current pose,
+      each then taking its own best value: a Jacobi step where :func:`hill_climb` walks the
+      dims one after the other), and all ``K`` lanes (e.g. heading hypotheses, evidence
+      proposals) share that call; the lanes never mix.
+    * a combined move (more than one dim moved) is checked: every call also scores each lane's
+      current pose (the grid's centre), and a combined move that turned out worse than the best
+      single-dim move of its batch is replaced by that single move (whose cost is known), so the
+      cost never rises. Why: the dims of one stage are coupled (a shoulder's three rotations,
+      the pelvis' translation and turn), and moves that each lower the cost alone can overshoot
+      together.
+
+    Parameters
+    ----------
+    cost_fn : callable, (M, D) float64 -> (M,) float
+    X0 : (K, D) or (D,) float, start poses (lanes)
+    stages : sequence of sequences of int, the dims of each stage, in search order
+    steps : (D,) or (K, D) float, half-width of the coarsest grid per dimension (and lane)
+    levels : int >= 1, grid refinements per stage
+    grid : int >= 2, grid points per dim and level
+    shrink : float in (0, 1), half-width factor from one level to the next
+    lower, upper : (D,) float, optional, limits; candidates are clamped into them
+    cost0 : (K,) float, optional, ``cost_fn(X0)`` when known
+
+    Returns
+    -------
+    StageClimbResult. ``calls == len(stages) * levels`` plus one when a lane's last move was a
+    combined one (it is scored once more to be checked).
+    """
+    X = np.atleast_2d(np.array(X0, dtype=np.float64))
+    k, d = X.shape
+    if not np.all(np.isfinite(X)):
+        raise ValueError("X0 must be finite")
+    if int(levels) < 1 or int(grid) < 2 or not 0 < shrink < 1:
+        raise ValueError(f"need levels >= 1, grid >= 2, 0 < shrink < 1; got {levels}, {grid}, "
+                         f"{shrink}")
+    steps = np.broadcast_to(np.asarray(steps, dtype=np.float64), (k, d))
+    lo = np.full(d, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
+    hi = np.full(d, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
+    X = np.clip(X, lo, hi)
+    groups = []
+    for s in stages:
+        g = np.array([int(i) for i in np.atleast_1d(s)], dtype=int)
+        if g.size == 0 or g.min() < 0 or g.max() >= d:
+            raise ValueError(f"stage {s!r} is empty or outside 0..{d - 1}")
+        groups.append(g)
+    offsets = np.linspace(-1.0, 1.0, int(grid))
+    cost = (np.full(k, np.nan) if cost0 is None
+            else np.asarray(cost0, dtype=np.float64).reshape(k).copy())
+    # a lane whose last move was combined: the best single move of that batch, to fall back to
+    fallback_x = [None] * k
+    fallback_c = np.full(k, np.nan)
+    evals = calls = 0
+
+    def call(cand):
+        nonlocal evals, calls
+        c = np.asarray(cost_fn(cand), dtype=np.float64).ravel()
+        if c.shape != (cand.shape[0],) or np.any(np.isnan(c)):
+            raise ValueError(f"cost_fn must return ({cand.shape[0]},) non-NaN costs, "
+                             f"got shape {c.shape}")
+        evals += cand.shape[0]
+        calls += 1
+        return c
+
+    def settle(lane, c_centre):
+        """The centre's cost is known now: keep a combined move or fall back. True = kept."""
+        if fallback_x[lane] is not None and c_centre > fallback_c[lane]:
+            X[lane] = fallback_x[lane]
+            cost[lane] = fallback_c[lane]
+            fallback_x[lane] = None
+            return False
+        fallback_x[lane] = None
+        cost[lane] = c_centre
+        return True
+
+    for g in groups:
+        for level in range(int(levels)):
+            blocks, vals_all = [], []
+            for lane in range(k):
+                h = steps[lane, g] * shrink ** level
+                vals = np.clip(X[lane, g, None] + h[:, None] * offsets, lo[g, None], hi[g, None])
+                cand = np.repeat(X[lane][None], g.size * offsets.size + 1, axis=0)
+                rows = np.arange(g.size * offsets.size)
+                cand[rows, np.repeat(g, offsets.size)] = vals.ravel()
+                # the last row is the centre itself: its cost checks the lane's last move
+                blocks.append(cand)
+                vals_all.append(vals)
+            c_all = call(np.concatenate(blocks)).reshape(k, -1)
+            for lane in range(k):
+                if not settle(lane, c_all[lane, -1]):
+                    continue  # this batch searched about a rejected pose: skip it
+                c = c_all[lane, :-1].reshape(g.size, offsets.size)
+                vals = vals_all[lane]
+                tie = np.where(c == c.min(axis=1, keepdims=True), np.abs(offsets), np.inf)
+                best = np.argmin(tie, axis=1)
+                cb = c[np.arange(g.size), best]
+                moved = np.nonzero(cb < cost[lane])[0]
+                if moved.size == 0:
+                    continue
+                one = moved[np.argmin(cb[moved])]
+                single = X[lane].copy()
+                single[g[one]] = vals[one, best[one]]
+                if moved.size == 1:
+                    X[lane], cost[lane] = single, cb[one]
+                    continue
+                fallback_x[lane], fallback_c[lane] = single, cb[one]
+                X[lane, g[moved]] = vals[moved, best[moved]]
+                cost[lane] = np.nan  # the combined move has not been scored yet
+    pending = [lane for lane in range(k) if fallback_x[lane] is not None or np.isnan(cost[lane])]
+    if pending:
+        c = call(X[pending])
+        for lane, cl in zip(pending, c):
+            settle(lane, cl)
+    return StageClimbResult(X, cost, evals, calls)

@@ -31,12 +31,16 @@ class FrameEstimate:
     score : float, the tracker's objective for ``params`` (lower = better for cost-based trackers)
     evaluations : int, candidate poses scored for this frame
     info : dict, method-specific diagnostics (JSON-able)
+    engine_calls : int or None, scoring-engine calls made for this frame (set by the runner)
+    engine_seconds : float or None, wall time of those calls (set by the runner)
     """
 
     params: np.ndarray
     score: float
     evaluations: int
     info: dict = field(default_factory=dict)
+    engine_calls: int | None = None
+    engine_seconds: float | None = None
 
 
 class Tracker:

@@ -150,6 +150,18 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
 
         return refine
 
+    def _refine_many_fn(self, x_pred):
+        """``X (K, D) -> (X (K, D), costs (K,), evaluations, calls)``: the proposals' short
+        climbs, all in the same engine calls (``stages="parts"``)."""
+        cost = self.objective(x_pred)
+        steps = self.search_steps()
+
+        def refine_many(X):
+            r = self._stage_climb(cost, X, self.stage_dofs, steps, self.opt.refine_levels)
+            return r.X, r.cost, r.evaluations, r.calls
+
+        return refine_many
+
     def step(self, frame):
         if self.x is None:
             raise RuntimeError("start() the tracker first")
@@ -171,12 +183,13 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
             prune_radius=self.opt.prune_radius, cost_best=c_best, lower=self.body.dofs.lower,
             upper=self.body.dofs.upper, max_passes=self.opt.max_passes,
             margin=self.opt.accept_margin, control=self.opt.control_refine, reach=self.reach,
-            nearest=self.opt.nearest_part)
+            nearest=self.opt.nearest_part,
+            refine_many=self._refine_many_fn(x_pred) if self.opt.stages == "parts" else None)
         self.accepted_total += len(ep.accepted)
         self._accept(ep.x)
         info = {"detections": int(len(det.points)), "accepted": [a["part"] for a in ep.accepted],
-                "quality": self.quality(ep.x)}
-        return FrameEstimate(ep.x, float(ep.cost), evals + int(ep.evaluations) + 1, info)
+                "quality": self.quality_of(ep.x, ep.cost, x_pred)}
+        return FrameEstimate(ep.x, float(ep.cost), evals + int(ep.evaluations), info)
 
 
 class EvidenceOnlyDepthTracker(EvidenceDepthTracker):

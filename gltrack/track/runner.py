@@ -22,6 +22,7 @@ from gltrack.data.dataset import Dataset
 from gltrack.data.provenance import recorded_range, run_provenance
 from gltrack.data.results import BODY, ResultsWriter, load_body_record
 from gltrack.export.bvh import write_params_bvh
+from gltrack.render.engine import ENGINE_STATS
 
 from . import checkpoint
 from .bodies import resolve_body
@@ -96,9 +97,13 @@ def _step(tracker, f: int, hooks):
     """(estimate, seconds) of frame ``f``, the hooks run first."""
     for hook in hooks:
         hook(tracker, f)
+    snap = ENGINE_STATS.snapshot()
     t0 = time.perf_counter()
     est = tracker.step(f)
-    return est, time.perf_counter() - t0
+    secs = time.perf_counter() - t0
+    used = ENGINE_STATS.since(snap)
+    est.engine_calls, est.engine_seconds = used["calls"], used["seconds"]
+    return est, secs
 
 
 #: Mean qualities within this fraction of the best are a tie: the evidence does not tell the
@@ -337,7 +342,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 checkpoint.replayed(f, est, finished)
             else:
                 writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
-                              est.score, est.evaluations, secs, info=est.info)
+                              est.score, est.evaluations, secs, info=est.info,
+                              engine_calls=est.engine_calls, engine_seconds=est.engine_seconds)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
             bad = watch.update(est.info.get("quality"))
             if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
