@@ -157,3 +157,28 @@ def test_recovery_from_a_lost_start(setup, ctx):
             assert any(e.info.get("recovered") for e in ests)
             assert max(e.evaluations for e in ests) > 60
     assert res[2] < 0.15 < res[0], res
+
+
+def test_fit_from_prototypes_escapes_wrong_predictions(setup):
+    """The blob fit started from wrong predictions follows them; with ``fit_prototypes`` the
+    cluster means at the estimate's root are fitted too and the most voxel-likely fit wins:
+    the evidence no longer follows the predictions and scores the true pose better."""
+    root, body, model, test = setup
+    f = 8
+    wrong = test[f].copy()
+    half = periodic_motion(body, N_FRAMES, phase=1.0 + np.pi, period=PERIOD)
+    wrong[6:] = half[f, 6:]  # the root right, every limb half a cycle off
+    with Dataset.open(root / "ds") as ds:
+        got = {}
+        for n in (0, 3):
+            opt = tv.VlmmOptions(model=str(root / "model.npz"), particles=20, max_depth=2,
+                                 colour=False, fit_prototypes=n)
+            tr = tv.VlmmTracker(ds, body, None, opt, np.random.default_rng(0))
+            tr.start(f, wrong)
+            tr.evidence.set_frame(f)
+            tr._fit_from_clusters(tr.P)
+            got[n] = (tr.evidence.fit_loglik, tr.evidence.costs(test[f:f + 1])[0])
+    assert got[3][0] > got[0][0], got
+    assert got[3][1] < 0.8 * got[0][1], got
+    with pytest.raises(ValueError, match="fit_prototypes"):
+        tv.VlmmOptions(model="m.npz", fit_prototypes=-1).validate()

@@ -206,7 +206,8 @@ def _summary(rows: list) -> dict:
 
 
 def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | None = None,
-               seeds: int | None = None, first: int = 0, protocols=(1, 2)) -> dict:
+               seeds: int | None = None, first: int = 0, protocols=(1, 2),
+               vlmm_options: dict | None = None) -> dict:
     """The measurements of Caillette et al.'s behaviour-model tracker (see module docstring).
 
     Parameters
@@ -218,6 +219,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     seeds : tracker seeds per configuration (default 1 quick, 3 full)
     first : first frame of the test take (after its leading T-pose is skipped)
     protocols : which protocols to run (1, 2 or both)
+    vlmm_options : extra options of every ``vlmm`` run (to measure a change of the tracker)
 
     Returns
     -------
@@ -267,6 +269,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
            "train_frames": int(sum(len(s) for s in train)), "test_frames": int(n_frames),
            "test_first_frame": int(first), "test_take_frames": int(len(test_all)),
            "seed": seed, "seeds": int(seeds), "quick": bool(quick), "learn_seconds": learn_s,
+           "vlmm_options": dict(vlmm_options or {}),
            "model": model.report(), "entropy_vs_memory": sweep, "protocol1": {},
            "protocol2": {}, "recovery": {}}
     with tempfile.TemporaryDirectory(prefix="gltrack-bench-vlmm-") as tmp:
@@ -281,7 +284,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
         def opts_of(method, opts, fit_from):
             o = dict(opts, fit_from=fit_from)
             if method == "vlmm":
-                o["model"] = str(model_path)
+                o.update(vlmm_options or {}, model=str(model_path))
             return o
 
         # protocol 1: the blob fit from the true pose (oracle of the protocol), true start

@@ -72,6 +72,10 @@ class VlmmOptions(BlobEvidenceOptions):
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
     tile : silhouette tile side, pixels (power of two)
     fit_inits : clusters (by particle support) whose predicted poses initialise the blob fit
+    fit_prototypes : also fit from this many cluster prototypes (the model's cluster means at
+        the last estimate's root), those whose unfitted blobs explain the voxels best; the fit
+        with the best voxel likelihood is the evidence. Starts that do not come from the
+        predictions keep the evidence from following them (the drift); 0 = predictions only
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
@@ -90,6 +94,7 @@ class VlmmOptions(BlobEvidenceOptions):
     estimate: str = "mean"
     tile: int = 64
     fit_inits: int = 3
+    fit_prototypes: int = 0
     headings: int = 12
     lost_threshold: float = 0.0
     lost_frames: int = 3
@@ -100,7 +105,7 @@ class VlmmOptions(BlobEvidenceOptions):
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 0, "lam", "root_scale", "other_scale", "lost_threshold",
-                      "lost_frames"),
+                      "lost_frames", "fit_prototypes"),
             *at_least(self, 1, "fit_inits", "headings")]
         if not self.model:
             bad.append("model = \"\": method vlmm needs a behaviour model: --behaviour MODEL.npz "
@@ -289,6 +294,15 @@ class VlmmTracker(Tracker):
         poses = np.stack([P[cl == k].mean(axis=0) for k in top])
         if self.est is not None:
             poses = np.concatenate([poses, self.est[None]])
+            n = int(self.opt.fit_prototypes)
+            if n > 0:
+                # the cluster means at the estimate's root: starts the predictions did not
+                # choose, so a fit that drifted with the particles can lose to one that did not
+                g = self.model.gmm
+                proto = np.repeat(self.est[None], g.n_components, axis=0)
+                proto[:, self.prior.idx] = g.means[:, :self.model.n_angles]
+                proto = self.body.dofs.validate(proto)
+                poses = np.concatenate([poses, proto[self.evidence.rank(proto, n)]])
         self.evidence.fit(poses)
 
     def close(self):
