@@ -72,10 +72,11 @@ class VlmmOptions(BlobEvidenceOptions):
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
     tile : silhouette tile side, pixels (power of two)
     fit_inits : clusters (by particle support) whose predicted poses initialise the blob fit
-    fit_prototypes : also fit from this many cluster prototypes (the model's cluster means at
-        the last estimate's root), those whose unfitted blobs explain the voxels best; the fit
-        with the best voxel likelihood is the evidence. Starts that do not come from the
-        predictions keep the evidence from following them (the drift); 0 = predictions only
+    fit_prototypes : also fit from this many cluster prototypes (the model's cluster means
+        placed on the voxels' centroid at ``headings`` headings), those whose unfitted blobs
+        explain the voxels best; the fit with the best voxel likelihood is the evidence. Starts
+        that do not come from the predictions keep the evidence from following them (the
+        drift) and let a lost particle set show a high KL; 0 = predictions only
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
@@ -296,13 +297,14 @@ class VlmmTracker(Tracker):
             poses = np.concatenate([poses, self.est[None]])
             n = int(self.opt.fit_prototypes)
             if n > 0:
-                # the cluster means at the estimate's root: starts the predictions did not
-                # choose, so a fit that drifted with the particles can lose to one that did not
+                # cluster means placed on the voxels' centroid at ``headings`` headings: starts
+                # the predictions did not choose, so a fit that followed wrong particles (even
+                # a metre off) loses to one on the body, and their KL then flags the failure
                 g = self.model.gmm
                 proto = np.repeat(self.est[None], g.n_components, axis=0)
                 proto[:, self.prior.idx] = g.means[:, :self.model.n_angles]
-                proto = self.body.dofs.validate(proto)
-                poses = np.concatenate([poses, proto[self.evidence.rank(proto, n)]])
+                cand = placed_candidates(self.evidence, self.body, proto, self.opt.headings)
+                poses = np.concatenate([poses, cand[self.evidence.rank(cand, n)]])
         self.evidence.fit(poses)
 
     def close(self):
