@@ -207,7 +207,7 @@ def _summary(rows: list) -> dict:
 
 def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | None = None,
                seeds: int | None = None, first: int = 0, protocols=(1, 2),
-               vlmm_options: dict | None = None) -> dict:
+               vlmm_options: dict | None = None, only=None) -> dict:
     """The measurements of Caillette et al.'s behaviour-model tracker (see module docstring).
 
     Parameters
@@ -220,6 +220,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     first : first frame of the test take (after its leading T-pose is skipped)
     protocols : which protocols to run (1, 2 or both)
     vlmm_options : extra options of every ``vlmm`` run (to measure a change of the tracker)
+    only : labels of the runs to do (default all), e.g. ``["vlmm_1000"]``
 
     Returns
     -------
@@ -294,6 +295,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
             if pn not in protocols:
                 continue
             for label, method, opts in runs:
+                if only is not None and label not in only:
+                    continue
                 rows = []
                 for s in range(seed, seed + seeds):
                     row, _ = _track_run(ds, method, opts_of(method, opts, fit_from),
@@ -306,6 +309,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
             rec_runs = [PROTOCOL2[quick][0],  # the VLMM of the targets, then the diffusion
                         next(r for r in PROTOCOL2[quick] if r[1] == "condensation")]
             for label, method, opts in rec_runs:
+                if only is not None and label not in only:
+                    continue
                 row, rms = _track_run(ds, method, opts_of(method, opts, "predictions"),
                                       tmp / f"recovery_{label}", seed, init="groundtruth",
                                       hooks=[set_fault(FAIL_AT, FAIL_RAD, FAIL_SHIFT)])
