@@ -13,8 +13,9 @@ with the sensor simulator (four colour cameras, cluttered room, MOG2 masks). Rep
   trackers start from the true first pose; ``vlmm`` 200 particles against ``condensation`` 5000
   and ``apf-blobs`` 1000 x 5 layers, RMS joint position error over the frames, several seeds;
 * **protocol 2, the whole system** (Fig. 11): the blob fit starts from the trackers' own
-  predictions (for ``vlmm``: the predicted poses of the best-supported clusters), the trackers
-  start from nothing (``--init auto``); ``vlmm`` 1000 against the same baselines; then
+  predictions (for ``vlmm``: the predicted poses of the best-supported clusters, plus its
+  ``fit_prototypes`` cluster means placed on the voxels; the best voxel likelihood wins), the
+  trackers start from nothing (``--init auto``); ``vlmm`` 1000 against the same baselines; then
   recovery (a labelled ablation: true start): at tracked frame :data:`FAIL_AT` the particle set
   is turned by 1.5 rad and moved by 0.5 m (:func:`gltrack.bench.faults.set_fault`) and the
   frames until the RMS joint error is back under :data:`RECOVERED_M` are counted (``vlmm``

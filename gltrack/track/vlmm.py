@@ -76,7 +76,8 @@ class VlmmOptions(BlobEvidenceOptions):
         placed on the voxels' centroid at ``headings`` headings), those whose unfitted blobs
         explain the voxels best; the fit with the best voxel likelihood is the evidence. Starts
         that do not come from the predictions keep the evidence from following them (the
-        drift) and let a lost particle set show a high KL; 0 = predictions only
+        drift) and let a lost particle set show a high KL (bench vlmm, salsa: recovery
+        after 3 frames instead of never in 80); 0 = predictions only
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
@@ -95,7 +96,7 @@ class VlmmOptions(BlobEvidenceOptions):
     estimate: str = "mean"
     tile: int = 64
     fit_inits: int = 3
-    fit_prototypes: int = 0
+    fit_prototypes: int = 3
     headings: int = 12
     lost_threshold: float = 0.0
     lost_frames: int = 3
