@@ -296,7 +296,8 @@ class VlmmTracker(Tracker):
         poses = np.stack([P[cl == k].mean(axis=0) for k in top])
         if self.est is not None:
             poses = np.concatenate([poses, self.est[None]])
-            n = int(self.opt.fit_prototypes)
+            # (the oracle fit of protocol 1 ignores every start: no prototypes to rank)
+            n = int(self.opt.fit_prototypes) if self.evidence.fit_from == "predictions" else 0
             if n > 0:
                 # cluster means placed on the voxels' centroid at ``headings`` headings: starts
                 # the predictions did not choose, so a fit that followed wrong particles (even
