@@ -165,3 +165,37 @@ def test_chi_square_segmentation_matches_the_masks(setup, tmp_path):
         ev = BlobEvidence(ds, body, max_depth=1, segmentation="colour")
         with pytest.raises(ValueError, match="no background frames"):
             ev.set_frame(0)
+
+
+def test_fit_from_groundtruth_is_the_true_pose_fit(setup, tmp_path):
+    """fit_from = "groundtruth" (protocol 1 of bench vlmm, an oracle): whatever poses a tracker
+    proposes, the frame's evidence is the fit from the true pose; from a wrong prediction the
+    ordinary fit follows the prediction (the drift) and scores the truth worse."""
+    root, body, test, _ = setup
+    wrong = turn_and_shift(test[5:6], body.dofs, 1.0, 0.2)
+    with Dataset.open(root / "ds") as ds:
+        oracle = BlobEvidence(ds, body, max_depth=2, colour=False, fit_from="groundtruth")
+        plain = BlobEvidence(ds, body, max_depth=2, colour=False)
+        for ev in (oracle, plain):
+            ev.set_frame(5)
+        ll_o = oracle.fit(wrong)
+        ll_t = plain.fit(test[5:6])
+        assert ll_o == pytest.approx(ll_t)
+        np.testing.assert_allclose(oracle.observed.means, plain.observed.means)
+        kl_truth = oracle.costs(test[5:6])[0]
+        plain.fit(wrong)
+        assert plain.costs(test[5:6])[0] > kl_truth
+        # the options reach the evidence and a bad value names the key
+        tr = CondensationTracker(ds, body, None, CondensationOptions(
+            particles=10, max_depth=2, fit_from="groundtruth"))
+        assert tr.evidence.fit_from == "groundtruth"
+        with pytest.raises(ValueError, match="fit_from"):
+            CondensationTracker(ds, body, None, CondensationOptions(fit_from="truth"))
+    # a dataset without true poses: one line naming the file and the field
+    import shutil
+    bare = tmp_path / "bare"
+    shutil.copytree(root / "ds", bare)
+    (bare / "groundtruth.npz").unlink()
+    with Dataset.open(bare) as ds:
+        with pytest.raises(ValueError, match="groundtruth.npz: field 'params'"):
+            BlobEvidence(ds, body, max_depth=2, fit_from="groundtruth")

@@ -377,3 +377,16 @@ def test_behaviour_from_cmu_walk():
     X = m.features(params)
     Xn, sn = m.predict(np.random.default_rng(1), X, np.zeros(len(X), dtype=int), lam=0.5)
     assert np.all(np.isfinite(Xn)) and np.all(sn >= 0)
+
+
+def test_no_transition_across_sequences():
+    """Sequences are kept apart: the end of one never precedes the start of the next, so a
+    symbol only ever followed by itself within each sequence predicts itself alone."""
+    v = Vlmm.fit([np.zeros(30, dtype=np.int64), np.ones(30, dtype=np.int64)], 2,
+                 max_memory=2, min_count=1, gamma=1e-3)
+    p = v.next_distribution(v.initial_state([0]))
+    assert p[1] < 2e-3 and p[0] > 0.99
+    # glued into one sequence, the same symbols do show the 0 -> 1 transition
+    glued = Vlmm.fit([np.r_[np.zeros(30), np.ones(30)].astype(np.int64)], 2, max_memory=2,
+                     min_count=1, gamma=1e-3)
+    assert glued.next_distribution(glued.initial_state([0]))[1] > 0.02

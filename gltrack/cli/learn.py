@@ -38,6 +38,10 @@ def add_arguments(p):
     p.add_argument("--heldout", type=float, default=0.2, metavar="FRAC",
                    help="fraction at the end of each clip kept out of training for the held-out "
                         "entropy (0: learn from everything)")
+    p.add_argument("--heldout-motion", nargs="+", metavar="CLIP.bvh",
+                   help="held-out takes for the held-out entropy (e.g. another take of the same "
+                        "performer); the --motion clips are then learnt from whole (--heldout "
+                        "is ignored)")
     p.add_argument("--k-max", type=int, default=30, help="most clusters tried by the clustering")
     p.add_argument("--min-count", type=int, default=3,
                    help="fewest occurrences of a context for the VLMM to consider it")
@@ -51,6 +55,11 @@ def _check(args, usage_error):
     for m in args.motion:
         if not Path(m).is_file():
             raise usage_error(f"--motion: no such file {m}")
+    for m in args.heldout_motion or ():
+        if not Path(m).is_file():
+            raise usage_error(f"--heldout-motion: no such file {m}")
+        if any(Path(m).resolve() == Path(t).resolve() for t in args.motion):
+            raise usage_error(f"--heldout-motion: {m} is also a training clip (--motion)")
     if args.max_memory < 0:
         raise usage_error(f"--max-memory must be >= 0, got {args.max_memory}")
     if not args.epsilon >= 0:
@@ -96,40 +105,64 @@ def format_report(rep: dict, clips: list) -> str:
     return "\n".join(lines)
 
 
-def run(args):
-    import numpy as np
-
-    from .common import UsageError, atomic_output
-    from gltrack.motion.behaviour import BehaviourModel
+def _load_clips(paths, args, min_frames, names=None):
+    """(T, D) params of each BVH at ``args.fps`` on preset ``args.dof``, with their DOF names;
+    ValueError naming the file when a clip is too short or its DOFs differ."""
     from gltrack.motion.retarget import load_motion
 
-    _check(args, UsageError)
-    seqs, clips, names = [], [], None
-    for m in args.motion:
-        _, dofs, params, _ = load_motion(m, args.dof, fps=args.fps, skip_jumps=True)
+    seqs = []
+    for m in paths:
+        try:
+            _, dofs, params, _ = load_motion(m, args.dof, fps=args.fps, skip_jumps=True)
+        except ValueError as e:
+            if str(m) in str(e):
+                raise
+            raise ValueError(f"{m}: {e}") from None  # name the file (e.g. an empty motion)
         if names is not None and dofs.names != names:
             raise ValueError(f"{m}: its DOFs differ from the first clip's")
         names = dofs.names
-        min_frames = 4 if args.heldout == 0 else int(np.ceil(2 / (1 - args.heldout))) + 2
         if len(params) < min_frames:
             raise ValueError(f"{m}: only {len(params)} frames at {args.fps:g} frames/s; "
                              f"at least {min_frames} are needed")
         seqs.append(params)
-        clips.append((m, len(params)))
+    return seqs, names
+
+
+def run(args):
+    import time
+
+    import numpy as np
+
+    from .common import UsageError, atomic_output
+    from gltrack.motion.behaviour import BehaviourModel
+
+    _check(args, UsageError)
+    t0 = time.perf_counter()
+    heldout = 0.0 if args.heldout_motion else args.heldout
+    # every clip stays its own sequence: no VLMM context or transition spans two files
+    seqs, names = _load_clips(args.motion, args, 4 if heldout == 0
+                              else int(np.ceil(2 / (1 - heldout))) + 2)
+    clips = [(m, len(s)) for m, s in zip(args.motion, seqs)]
+    held = None
+    if args.heldout_motion:
+        held, _ = _load_clips(args.heldout_motion, args, 3, names)
     rng = np.random.default_rng(args.seed)
-    model = BehaviourModel.fit(seqs, args.fps, rng, holdout=args.heldout,
+    model = BehaviourModel.fit(seqs, args.fps, rng, held_out=held, holdout=heldout,
                                augment=not args.no_augment, k_max=args.k_max,
                                max_memory=args.max_memory, epsilon=args.epsilon,
                                min_count=args.min_count, dof_names=names[6:])
+    learn_s = time.perf_counter() - t0
+    model.info["learn_seconds"] = learn_s
     model.info["preset"] = args.dof
     model.info["clips"] = [str(p) for p, _ in clips]
     with atomic_output(args.out) as tmp:  # a failed write leaves no partial model
         model.save(tmp)
     print(format_report(model.report(), clips))
+    print(f"learnt in:        {learn_s:.1f} s (reading the clips, clustering and the VLMM)")
     if args.sweep_memory is not None:
-        train, held = _split(seqs, args.heldout)
-        print(format_sweep(model.memory_sweep(train, held, args.sweep_range,
-                                              augment=not args.no_augment)))
+        train, ho = _split(seqs, heldout)
+        print(format_sweep(model.memory_sweep(train, held if held is not None else ho,
+                                              args.sweep_range, augment=not args.no_augment)))
     print(f"wrote {args.out}")
     return 0
 

@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 SEGMENTATIONS = ("masks", "colour")
 #: a best-particle KL above this (nats) flags a lost frame by default
 LOST_KL = 25.0
+#: where the blob fit starts: the trackers' predicted poses (the system), or the true pose of
+#: the frame (an oracle: the paper's protocol comparing motion models only, Fig. 12)
+FIT_FROM = ("predictions", "groundtruth")
 #: timed stages, keys of :attr:`BlobEvidence.seconds`
 STAGES = ("voxels", "blob_fit", "evaluation")
 
@@ -78,7 +81,7 @@ class BlobEvidence:
 
     def __init__(self, dataset, body, *, volume=(), base: int = 16, max_depth: int = 3,
                  tolerance: int = 0, segmentation: str = "masks", fit_iterations: int = 4,
-                 point_size: float = 0.06, colour: bool = True):
+                 point_size: float = 0.06, colour: bool = True, fit_from: str = "predictions"):
         if segmentation not in SEGMENTATIONS:
             raise ValueError(f"option segmentation must be one of {SEGMENTATIONS}, got "
                              f"{segmentation!r}")
@@ -106,6 +109,21 @@ class BlobEvidence:
         self.fit_loglik = -np.inf
         self._points = None
         self.seconds = dict.fromkeys(STAGES, 0.0)
+        if fit_from not in FIT_FROM:
+            raise ValueError(f"option fit_from must be one of {FIT_FROM}, got {fit_from!r}")
+        self.fit_from = fit_from
+        self._true_params = None
+        if fit_from == "groundtruth":
+            # the labelled oracle of Caillette et al.'s Fig. 12 protocol (motion models only)
+            gt = dataset.groundtruth()
+            if gt is None or "params" not in gt:
+                raise ValueError(f"{dataset.path}/groundtruth.npz: field 'params' is needed by "
+                                 "fit_from = 'groundtruth'")
+            tp = np.asarray(gt["params"], dtype=np.float64)
+            if tp.ndim != 2 or tp.shape[1] != body.dofs.size:
+                raise ValueError(f"{dataset.path}/groundtruth.npz: field 'params' has shape "
+                                 f"{tp.shape}, the body has {body.dofs.size} DOF")
+            self._true_params = tp
 
     @contextmanager
     def _timed(self, stage):
@@ -200,8 +218,12 @@ class BlobEvidence:
         """Fit the blobs from each of K poses (K, D) and keep the most likely as the evidence.
 
         Returns the kept fit's mean log-likelihood per unit volume (nats); ``-inf`` when the
-        frame has no voxels (the evidence is then left unset and :meth:`costs` raises).
+        frame has no voxels (the evidence is then left unset and :meth:`costs` raises). With
+        ``fit_from = "groundtruth"`` the given poses are ignored and the fit starts from the
+        frame's true pose alone (the oracle protocol).
         """
+        if self._true_params is not None:
+            init_poses = self._true_params[min(int(self.frame), len(self._true_params) - 1)][None]
         if self._points is None:
             self.observed, self.fit_loglik = None, -np.inf
             return -np.inf

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gltrack.observe.blob_evidence import (LOST_KL, SEGMENTATIONS, BlobEvidence,
+from gltrack.observe.blob_evidence import (FIT_FROM, LOST_KL, SEGMENTATIONS, BlobEvidence,
                                            ColourAcquisition, placed_candidates, stage_seconds)
 from gltrack.sample import AnnealedParticleFilter, StateSpace, cost_weights
 
@@ -50,6 +50,10 @@ class BlobEvidenceOptions(Options):
     fit_iterations : EM iterations of the blob fit
     colour : coloured blobs (the fit weighs the voxels' colours; false: shape only)
     colour_frames : first frames over which the blobs' colours are acquired from the estimates
+    fit_from : "predictions" (default: the blob fit starts from predicted poses) or
+        "groundtruth" (an oracle for comparing motion models only, the paper's Fig. 12
+        protocol: the fit of every frame starts from the dataset's true pose; never a
+        headline figure of the tracker)
     """
 
     volume: list = field(default_factory=list)
@@ -60,9 +64,11 @@ class BlobEvidenceOptions(Options):
     fit_iterations: int = 4
     colour: bool = True
     colour_frames: int = 5
+    fit_from: str = "predictions"
 
     def problems(self):
         bad = super().problems() + [*choice(self, "segmentation", SEGMENTATIONS),
+                                    *choice(self, "fit_from", FIT_FROM),
                                     *at_least(self, 1, "base", "fit_iterations"),
                                     *at_least(self, 0, "max_depth", "tolerance", "colour_frames")]
         v = np.asarray(self.volume, dtype=np.float64)
@@ -76,7 +82,7 @@ class BlobEvidenceOptions(Options):
         return BlobEvidence(dataset, body, volume=self.volume, base=self.base,
                             max_depth=self.max_depth, tolerance=self.tolerance,
                             segmentation=self.segmentation, fit_iterations=self.fit_iterations,
-                            colour=self.colour)
+                            colour=self.colour, fit_from=self.fit_from)
 
 
 @dataclass

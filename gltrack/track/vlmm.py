@@ -72,6 +72,12 @@ class VlmmOptions(BlobEvidenceOptions):
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
     tile : silhouette tile side, pixels (power of two)
     fit_inits : clusters (by particle support) whose predicted poses initialise the blob fit
+    fit_prototypes : also fit from this many cluster prototypes (the model's cluster means
+        placed on the voxels' centroid at ``headings`` headings), those whose unfitted blobs
+        explain the voxels best; the fit with the best voxel likelihood is the evidence. Starts
+        that do not come from the predictions keep the evidence from following them (the
+        drift) and let a lost particle set show a high KL (bench vlmm, salsa: recovery
+        after 3 frames instead of never in 80); 0 = predictions only
     headings : headings tried per cluster at initialisation and recovery
     lost_threshold : worst acceptable best-fit (silhouette: XOR pixels per foreground pixel,
         blobs: KL nats); 0 = the evaluation's default
@@ -90,6 +96,7 @@ class VlmmOptions(BlobEvidenceOptions):
     estimate: str = "mean"
     tile: int = 64
     fit_inits: int = 3
+    fit_prototypes: int = 3
     headings: int = 12
     lost_threshold: float = 0.0
     lost_frames: int = 3
@@ -100,7 +107,7 @@ class VlmmOptions(BlobEvidenceOptions):
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 0, "lam", "root_scale", "other_scale", "lost_threshold",
-                      "lost_frames"),
+                      "lost_frames", "fit_prototypes"),
             *at_least(self, 1, "fit_inits", "headings")]
         if not self.model:
             bad.append("model = \"\": method vlmm needs a behaviour model: --behaviour MODEL.npz "
@@ -289,6 +296,17 @@ class VlmmTracker(Tracker):
         poses = np.stack([P[cl == k].mean(axis=0) for k in top])
         if self.est is not None:
             poses = np.concatenate([poses, self.est[None]])
+            # (the oracle fit of protocol 1 ignores every start: no prototypes to rank)
+            n = int(self.opt.fit_prototypes) if self.evidence.fit_from == "predictions" else 0
+            if n > 0:
+                # cluster means placed on the voxels' centroid at ``headings`` headings: starts
+                # the predictions did not choose, so a fit that followed wrong particles (even
+                # a metre off) loses to one on the body, and their KL then flags the failure
+                g = self.model.gmm
+                proto = np.repeat(self.est[None], g.n_components, axis=0)
+                proto[:, self.prior.idx] = g.means[:, :self.model.n_angles]
+                cand = placed_candidates(self.evidence, self.body, proto, self.opt.headings)
+                poses = np.concatenate([poses, cand[self.evidence.rank(cand, n)]])
         self.evidence.fit(poses)
 
     def close(self):

@@ -1,0 +1,40 @@
+"""bench vlmm's targets and tables from measured rows (the runs themselves need ../shared)."""
+from gltrack.bench.vlmm import _summary, _vlmm_targets, format_table
+
+
+def _row(method, rms, seed, fps=2.0):
+    return {"method": method, "seed": seed, "init": "groundtruth", "options": {},
+            "rms_joint_error_m": rms, "mean_joint_error_mm": 900 * rms,
+            "evaluations_per_frame": 200.0, "fps": fps, "rms_over_time_m": [rms],
+            "stage_seconds_per_frame": {"voxels": 0.1, "blob_fit": 0.05,
+                                        "particle_filter": 0.02}}
+
+
+def test_targets_and_tables():
+    p1 = {"vlmm_200": _summary([_row("vlmm", 0.08, 0), _row("vlmm", 0.09, 1)]),
+          "condensation_5000": _summary([_row("condensation", 0.045, 0)]),
+          "apf_1000x5": _summary([_row("apf-blobs", 0.07, 0)])}
+    p2 = {"vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0)]),
+          "condensation_5000": _summary([_row("condensation", 0.2, 0)])}
+    assert abs(p1["vlmm_200"]["rms_joint_error_m"] - 0.085) < 1e-12
+    res = {"machine": "m", "clip": "c.bvh", "train_takes": ["a", "b"], "fps": 30.0,
+           "train_frames": 100, "test_frames": 20, "test_first_frame": 0,
+           "test_take_frames": 50, "seeds": 2, "learn_seconds": 1.0,
+           "model": {"n_clusters": 9, "n_states": 45, "train_entropy": 1.0,
+                     "heldout_entropy": 1.2},
+           "entropy_vs_memory": [{"max_memory": 1, "n_states": 10, "train_entropy": 1.1,
+                                  "heldout_entropy": 1.3}],
+           "protocol1": p1, "protocol2": p2,
+           "recovery": {"vlmm_1000": {"failure_at_frame": 10, "rms_at_failure_m": 0.44,
+                                      "frames_to_recover": 3, "frames_observed": 10,
+                                      "threshold_m": 0.1}}}
+    t = res["targets"] = _vlmm_targets(res, quick=False)
+    assert t["p1_vlmm_le_condensation"] is False  # 85 mm against 45 mm
+    assert t["p1_vlmm_le_1.2_apf"] is False  # 85 > 1.2 x 70
+    assert t["p2_vlmm_rms_met"] is True and t["recovery_within_30"] is True
+    assert t["loop_fps"] == 11.0
+    text = format_table(res)
+    assert "protocol 1, motion models only" in text and "protocol 2, the whole system" in text
+    assert "   85.0" in text and "after 3 frames" in text
+    res["recovery"]["vlmm_1000"]["frames_to_recover"] = None
+    assert _vlmm_targets(res, quick=False)["recovery_within_30"] is False
