@@ -107,6 +107,10 @@ def create_context(backend: str = "auto", device: int | None = None) -> moderngl
     order = {"auto": ["egl", "osmesa"], "egl": ["egl"], "osmesa": ["osmesa"]}.get(backend)
     if order is None:
         raise GLContextError(f"unknown GL backend {backend!r}; use auto, egl or osmesa")
+    if device is None and "egl" in order:  # a scheduler's GPU -> its EGL device (gl.devices)
+        from .devices import auto_device
+
+        device = auto_device()[0]
     errors = []
     for name in order:
         try:
