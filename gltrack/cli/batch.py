@@ -184,16 +184,20 @@ def run(args):
 
     bar = tqdm(total=sum(totals.values()), unit="frame", desc=f"batch {len(jobs)} datasets",
                disable=args.quiet)
-    state = {"ended": 0}
+    ended = {}  # name -> its frames on disk when it ended (not read again)
+
+    def frames_on_disk(job):
+        return max(0, finished_frame_count(job.out)) if Path(job.out).is_dir() else 0
 
     def poll():
-        n = sum(max(0, finished_frame_count(j.out)) if Path(j.out).is_dir() else 0
-                for j in todo)
+        n = sum(ended[j.name] if j.name in ended else frames_on_disk(j) for j in todo)
         bar.update(max(0, n - bar.n))
-        bar.set_postfix(datasets=f"{state['ended']}/{len(todo)}")
+        bar.set_postfix(datasets=f"{len(ended)}/{len(todo)}", refresh=False)
+
+    by_name = {j.name: j for j in todo}
 
     def on_done(rec):
-        state["ended"] += 1
+        ended[rec["name"]] = frames_on_disk(by_name[rec["name"]])
         msg = (f"{rec['name']}: {rec['status']}, {rec['frames']} frames"
                + (f", {rec['fps']:.2f} frames/s" if rec.get("fps") else "")
                + (f", {rec['error']}" if rec.get("error") else ""))

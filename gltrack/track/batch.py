@@ -286,8 +286,9 @@ def run_ray(jobs, ray_spec: str = "local", workers: int | None = None, retries: 
         env = {k: os.environ[k] for k in ("PYTHONPATH", "GLTRACK_SHADER_PATH",
                                           "GLTRACK_GL_BACKEND", "LP_NUM_THREADS")
                if k in os.environ}
+        # (a cluster's nodes have their own install: only a local Ray gets this process's)
         ray.init(**kwargs, log_to_driver=False, logging_level=logging.WARNING,
-                 runtime_env={"env_vars": env} if env else None)
+                 runtime_env={"env_vars": env} if env and ray_spec == "local" else None)
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         n = max(1, min(int(workers or cpus), len(jobs)))
