@@ -189,11 +189,18 @@ def test_manifest_overrides_and_errors_naming_file_and_field(study, tmp_path):
                  str(tmp_path / "o")]) == 1
     assert not (tmp_path / "o").exists()
     # the override of frames and options reaches the run: as `gltrack track --frames 1:4`
+    # and a dataset that fails inside its worker (frames beyond its end) is reported
     m.write_text(f'[defaults]\noptions = {{ levels = 2 }}\n[[dataset]]\n'
                  f'path = "{root / "data" / names[0]}"\nname = "first"\nframes = "1:4"\n'
-                 f'options = {{ heading_hypotheses = 1 }}\n')
+                 f'options = {{ heading_hypotheses = 1 }}\n'
+                 f'[[dataset]]\npath = "{root / "data" / names[1]}"\nname = "beyond"\n'
+                 f'frames = "50:60"\n')
     assert main(["-q", "batch", "--manifest", str(m), "--method", "hc", "--out",
-                 str(tmp_path / "o"), "--workers", "1", *FAST]) == 0
+                 str(tmp_path / "o"), "--workers", "1", *FAST]) == 1
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert [d["status"] for d in summary["datasets"]] == ["ok", "failed"]
+    assert "50:60" in summary["datasets"][1]["error"]
+    assert not (tmp_path / "o" / "beyond").exists()
     assert main(["-q", "track", str(root / "data" / names[0]), "--method", "hc", "--frames",
                  "1:4", "--out", str(tmp_path / "single"), "--config", str(cfg), *FAST]) == 0
     _same(tmp_path / "single", tmp_path / "o" / "first")
