@@ -55,3 +55,24 @@ def test_the_driver_query_describes_this_machine():
         assert d.cuda is None or d.cuda >= 0
         if d.software:
             assert d.cuda is None
+
+
+def test_info_shows_the_choice_and_a_cpu_only_worker_renders_in_software():
+    """``gltrack info`` with a scheduler's "no GPU" (Ray's CPU tasks): the software device,
+    really created (on a CPU-only machine that is also the default one)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "GLTRACK_EGL_DEVICE"}
+    env["CUDA_VISIBLE_DEVICES"] = ""
+    res = subprocess.run([sys.executable, "-m", "gltrack", "info", "--json"], capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert res.returncode == 0, res.stderr
+    info = json.loads(res.stdout)
+    if any(d.software for d in egl_devices()):
+        assert "software EGL device" in info["egl_device"]
+        assert "llvmpipe" in info["renderer"].lower() or "softpipe" in info["renderer"].lower()
+    else:
+        assert "no software" in info["egl_device"]
