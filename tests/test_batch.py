@@ -227,3 +227,40 @@ def test_local_ray_with_two_workers_matches_single_runs(study, tmp_path):
     assert [d["status"] for d in summary["datasets"]] == ["ok", "ok"]
     for name in names[:2]:
         _same(root / "single" / name, out / name)
+
+
+def test_a_ray_actor_killed_mid_dataset_is_restarted_and_the_result_is_identical(study, tmp_path):
+    """Ray restarts the actor and retries its task (``max_restarts``/``max_task_retries``);
+    the retried job resumes from the killed attempt's checkpoint."""
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'gltrack[test]')")
+    import subprocess
+
+    from gltrack.track.batch import Job, run_ray
+
+    root, names, cfg = study
+    out = tmp_path / "out" / names[2]
+    job = Job(names[2], str(root / "data" / names[2]), str(out), "hc",
+              {"heading_hypotheses": 1, "levels": 2}, seed=4, init="groundtruth", body="dataset")
+    killed = []
+
+    def killer():
+        deadline = time.time() + 240
+        while time.time() < deadline:
+            frames = out / "frames.jsonl"
+            if frames.is_file() and frames.read_text().count("\n") >= 2:
+                # the actor's process (Ray names it after the class and method)
+                pids = subprocess.run(["pgrep", "-f", "ray::TrackActor"], capture_output=True,
+                                      text=True).stdout.split()
+                for pid in pids:
+                    os.kill(int(pid), signal.SIGKILL)
+                    killed.append(pid)
+                return
+            time.sleep(0.01)
+
+    t = threading.Thread(target=killer)
+    t.start()
+    [rec] = run_ray([job], "local", workers=1)
+    t.join()
+    assert killed, "the actor was not killed"
+    assert rec["status"] == "ok" and 2 <= rec["resumed"] < N, rec
+    _same(root / "single" / names[2], out)
