@@ -334,11 +334,13 @@ CASES = {
                             {"GLTRACK_SHARED": "EMPTY"}),
     # --- batch: a study's manifest, checked before anything runs (no DIR left behind)
     "batch-manifest-unknown-key": (
-        lambda b, t: (_write(t / "study.toml", f'[[dataset]]\npath = "{b / "ds"}"\nframs = "0:2"\n'),
+        lambda b, t: (_write(t / "study.toml",
+                             f'[[dataset]]\npath = "{b / "ds"}"\nframs = "0:2"\n'),
                       ["batch", "--manifest", str(t / "study.toml"), "--method", "hc", "--out",
                        str(t / "study")])[1], "dataset[0]: unknown key(s) frams", "study", None),
     "batch-manifest-bad-frames": (
-        lambda b, t: (_write(t / "study.toml", f'[[dataset]]\npath = "{b / "ds"}"\nframes = "3:1"\n'),
+        lambda b, t: (_write(t / "study.toml",
+                             f'[[dataset]]\npath = "{b / "ds"}"\nframes = "3:1"\n'),
                       ["batch", "--manifest", str(t / "study.toml"), "--method", "hc", "--out",
                        str(t / "study")])[1], "dataset[0].frames", "study", None),
     "batch-no-datasets": (lambda b, t: ["batch", "--method", "hc", "--out", str(t / "study")],

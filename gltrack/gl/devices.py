@@ -130,7 +130,8 @@ def egl_devices() -> list[EglDevice]:
         cuda = None
         if query_attrib is not None and b"EGL_NV_device_cuda" in ext:
             value = ctypes.c_ssize_t(-1)
-            if query_attrib(handles[i], EGL_CUDA_DEVICE_NV, ctypes.byref(value)) and value.value >= 0:
+            ok = query_attrib(handles[i], EGL_CUDA_DEVICE_NV, ctypes.byref(value))
+            if ok and value.value >= 0:
                 cuda = int(value.value)
         out.append(EglDevice(i, cuda, b"EGL_MESA_device_software" in ext))
     return out
