@@ -225,6 +225,7 @@ def run(args):
     for job in jobs:
         rec = records[job.name]
         rec.pop("pid", None)
+        rec.setdefault("attempts", 0)  # skipped, or refused before a worker saw it
         rec["errors"] = None
         if rec["status"] in ("ok", "skipped"):
             try:
