@@ -332,6 +332,22 @@ CASES = {
                                   {"GLTRACK_SHARED": "/nonexistent"}),
     "bench-vlmm-no-clips": (lambda b, t: ["bench", "vlmm"], "mocap", None,
                             {"GLTRACK_SHARED": "EMPTY"}),
+    # --- batch: a study's manifest, checked before anything runs (no DIR left behind)
+    "batch-manifest-unknown-key": (
+        lambda b, t: (_write(t / "study.toml",
+                             f'[[dataset]]\npath = "{b / "ds"}"\nframs = "0:2"\n'),
+                      ["batch", "--manifest", str(t / "study.toml"), "--method", "hc", "--out",
+                       str(t / "study")])[1], "dataset[0]: unknown key(s) frams", "study", None),
+    "batch-manifest-bad-frames": (
+        lambda b, t: (_write(t / "study.toml",
+                             f'[[dataset]]\npath = "{b / "ds"}"\nframes = "3:1"\n'),
+                      ["batch", "--manifest", str(t / "study.toml"), "--method", "hc", "--out",
+                       str(t / "study")])[1], "dataset[0].frames", "study", None),
+    "batch-no-datasets": (lambda b, t: ["batch", "--method", "hc", "--out", str(t / "study")],
+                          "--manifest", "study", None),
+    "batch-workers-zero": (lambda b, t: ["batch", str(b / "ds"), "--method", "hc", "--out",
+                                         str(t / "study"), "--workers", "0"], "--workers",
+                           "study", None),
     # --- demo, info, the top level
     "demo-seconds-range": (lambda b, t: ["demo", "--out", str(t / "demo"), "--seconds", "0.1"],
                            "--seconds", "demo", None),

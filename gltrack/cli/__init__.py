@@ -13,13 +13,13 @@ import sys
 
 from gltrack import __version__
 
-from . import (bench, demo, eval, export, info, ingest, learn, learn_parts, refine_masks, render,
-               synth, track)
+from . import (batch, bench, demo, eval, export, info, ingest, learn, learn_parts, refine_masks,
+               render, synth, track)
 from .common import UsageError, check_output_file, describe_error, sigterm_exits
 
 #: the sub-commands, in the order ``--help`` lists them
-COMMANDS = (info, demo, synth, ingest, track, refine_masks, eval, learn, learn_parts, bench, export,
-            render)
+COMMANDS = (info, demo, synth, ingest, track, batch, refine_masks, eval, learn, learn_parts, bench,
+            export, render)
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "check_output_file", "main"]
 

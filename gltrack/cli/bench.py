@@ -6,7 +6,7 @@ from pathlib import Path
 
 NAME = "bench"
 HELP = "run a benchmark and print/write its JSON figures"
-SUITES = ("engine", "depth", "multiview", "vlmm")
+SUITES = ("engine", "depth", "multiview", "vlmm", "batch")
 
 
 def add_arguments(p):
@@ -14,7 +14,9 @@ def add_arguments(p):
                    help="engine: scoring throughput vs the naive way; depth / multiview / vlmm: tracker "
                         "accuracy on data synthesised from the reference CMU clips in "
                         "$GLTRACK_SHARED/mocap (default ../shared/mocap beside the repository); "
-                        "they refuse to run without them")
+                        "they refuse to run without them; batch: gltrack batch throughput with 1 "
+                        "and 2 local workers and 2 Ray workers (8 hc takes of 30 frames "
+                        "synthesised from one of those clips)")
     p.add_argument("--json", metavar="FILE", help="also write the results to FILE")
     p.add_argument("--quick", action="store_true", help="fewer candidates and repeats (noisier)")
     p.add_argument("--no-baseline", action="store_true", help="skip the pyrender baseline")
@@ -65,6 +67,10 @@ def _suite(name):
         from gltrack.bench.multiview import bench_multiview, table
 
         return (lambda a: bench_multiview(quick=a.quick, protocols=_protocols(a))), table
+    if name == "batch":
+        from gltrack.bench.batch import bench_batch, format_table
+
+        return (lambda a: bench_batch(quick=a.quick, seed=a.seed)), format_table
     from gltrack.bench.vlmm import bench_vlmm, format_table
 
     return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed)), format_table
@@ -82,6 +88,10 @@ def _suite_files(name) -> list[str]:
         return [f"mocap/{bvh}" for bvh, _ in CLIPS.values()]
     if name == "vlmm":
         from gltrack.bench.vlmm import CLIP
+
+        return [CLIP]
+    if name == "batch":
+        from gltrack.bench.batch import CLIP
 
         return [CLIP]
     return []

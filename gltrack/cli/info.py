@@ -1,5 +1,6 @@
 """``gltrack info``: what GL context gltrack gets here."""
 import json
+import os
 
 NAME = "info"
 HELP = "report the GL backend, renderer, version, limits and the reduction the engine will use"
@@ -17,6 +18,13 @@ def run(args):
 
     ctx = create_context(args.backend, args.device)
     info = capabilities(ctx).as_dict()
+    if args.device is None and not os.environ.get("GLTRACK_EGL_DEVICE"):
+        from gltrack.gl.devices import auto_device
+
+        info["egl_device"] = auto_device()[1]  # how a (batch) worker picks its device
+    else:
+        info["egl_device"] = "GLTRACK_EGL_DEVICE / --device " + str(
+            os.environ.get("GLTRACK_EGL_DEVICE") or args.device)
     try:
         import os
 

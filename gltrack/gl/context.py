@@ -183,6 +183,10 @@ def create_context(backend: str = "auto", device: int | None = None) -> moderngl
     if order is None:
         raise GLContextError(f"unknown GL backend {backend!r}; use auto, egl or osmesa")
     versions = version_requests(os.environ.get("GLTRACK_GL_VERSION"))
+    if device is None and "egl" in order:  # a scheduler's GPU -> its EGL device (gl.devices)
+        from .devices import auto_device
+
+        device = auto_device()[0]
     errors = []
     for name in order:
         make = (lambda v: _egl(device, v)) if name == "egl" else _osmesa
