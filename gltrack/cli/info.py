@@ -26,8 +26,6 @@ def run(args):
         info["egl_device"] = "GLTRACK_EGL_DEVICE / --device " + str(
             os.environ.get("GLTRACK_EGL_DEVICE") or args.device)
     try:
-        import os
-
         from gltrack.render.engine import batch_side, choose_reduction, target_memory
 
         info["reduction"] = choose_reduction(ctx)
