@@ -6,6 +6,7 @@ The datasets are tiny depth takes (tests/trackdata.py) tracked with the cheap ``
 the recorded body and the true first pose (``--body dataset --init groundtruth``: oracles, here
 only to keep the runs short; the comparison is batch against single run with the same inputs).
 """
+import contextlib
 import json
 import os
 import signal
@@ -25,6 +26,31 @@ from trackdata import make_depth_dataset  # noqa: E402
 
 FAST = ["--body", "dataset", "--init", "groundtruth", "--seed", "4"]
 N = 6
+
+
+@contextlib.contextmanager
+def _killer(out, pids):
+    """SIGKILL the processes ``pids()`` as soon as the run in ``out`` has written two frames;
+    yields the list of the pids killed (filled in by a thread while the body runs)."""
+    killed = []
+
+    def kill():
+        deadline = time.time() + 240
+        while time.time() < deadline:
+            frames = out / "frames.jsonl"
+            if frames.is_file() and frames.read_text().count("\n") >= 2:
+                for pid in pids():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                return
+            time.sleep(0.01)
+
+    t = threading.Thread(target=kill)
+    t.start()
+    try:
+        yield killed
+    finally:
+        t.join()
 
 
 @pytest.fixture(scope="module")
@@ -100,23 +126,8 @@ def test_a_worker_killed_mid_dataset_is_retried_and_the_result_is_identical(stud
     out = tmp_path / "out" / names[1]
     job = Job(names[1], str(root / "data" / names[1]), str(out), "hc",
               {"heading_hypotheses": 1, "levels": 2}, seed=4, init="groundtruth", body="dataset")
-    killed = []
-
-    def killer():
-        deadline = time.time() + 240
-        while time.time() < deadline:
-            frames = out / "frames.jsonl"
-            if frames.is_file() and frames.read_text().count("\n") >= 2:
-                for pid in _spawned_children():
-                    os.kill(pid, signal.SIGKILL)
-                    killed.append(pid)
-                return
-            time.sleep(0.01)
-
-    t = threading.Thread(target=killer)
-    t.start()
-    [rec] = run_local([job], workers=1, retries=2)
-    t.join()
+    with _killer(out, _spawned_children) as killed:
+        [rec] = run_local([job], workers=1, retries=2)
     assert killed, "the worker was not killed"
     assert rec["status"] == "ok" and rec["attempts"] == 2, rec
     assert 2 <= rec["resumed"] < N, rec  # the second attempt went on from the first's frames
@@ -241,26 +252,12 @@ def test_a_ray_actor_killed_mid_dataset_is_restarted_and_the_result_is_identical
     out = tmp_path / "out" / names[2]
     job = Job(names[2], str(root / "data" / names[2]), str(out), "hc",
               {"heading_hypotheses": 1, "levels": 2}, seed=4, init="groundtruth", body="dataset")
-    killed = []
+    def actors():  # the actor's process (Ray names it after the class and method)
+        return [int(p) for p in subprocess.run(["pgrep", "-f", "ray::TrackActor"],
+                                               capture_output=True, text=True).stdout.split()]
 
-    def killer():
-        deadline = time.time() + 240
-        while time.time() < deadline:
-            frames = out / "frames.jsonl"
-            if frames.is_file() and frames.read_text().count("\n") >= 2:
-                # the actor's process (Ray names it after the class and method)
-                pids = subprocess.run(["pgrep", "-f", "ray::TrackActor"], capture_output=True,
-                                      text=True).stdout.split()
-                for pid in pids:
-                    os.kill(int(pid), signal.SIGKILL)
-                    killed.append(pid)
-                return
-            time.sleep(0.01)
-
-    t = threading.Thread(target=killer)
-    t.start()
-    [rec] = run_ray([job], "local", workers=1)
-    t.join()
+    with _killer(out, actors) as killed:
+        [rec] = run_ray([job], "local", workers=1)
     assert killed, "the actor was not killed"
     assert rec["status"] == "ok" and 2 <= rec["resumed"] < N, rec
     _same(root / "single" / names[2], out)

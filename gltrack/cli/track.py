@@ -71,18 +71,11 @@ def _frames(text, usage_error=None):
 def load_config(path, usage_error):
     if path is None:
         return {}
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
-    p = Path(path)
-    if not p.is_file():
+    from gltrack.track.options import read_toml
+
+    if not Path(path).is_file():
         raise usage_error(f"--config: no such file {path}")
-    try:
-        with open(p, "rb") as f:
-            return tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    return read_toml(path, "--config file")
 
 
 def merge_flags(options: dict, args, usage_error) -> dict:

@@ -46,6 +46,25 @@ class HillClimbResult:
     calls: int
 
 
+class _CountedCost:
+    """``cost_fn`` checked and counted: ``(M, D) -> (M,)`` non-NaN costs, with the candidates
+    (``evaluations``) and batches (``calls``) it was given."""
+
+    def __init__(self, cost_fn):
+        self.cost_fn = cost_fn
+        self.evaluations = 0
+        self.calls = 0
+
+    def __call__(self, cand: np.ndarray) -> np.ndarray:
+        c = np.asarray(self.cost_fn(cand), dtype=np.float64).ravel()
+        if c.shape != (cand.shape[0],) or np.any(np.isnan(c)):
+            raise ValueError(f"cost_fn must return ({cand.shape[0]},) non-NaN costs, "
+                             f"got shape {c.shape}")
+        self.evaluations += cand.shape[0]
+        self.calls += 1
+        return c
+
+
 def _groups(dims_order, batch_independent: bool, d: int) -> list[tuple[int, ...]]:
     groups = []
     for entry in dims_order:
@@ -99,18 +118,8 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
     x = np.clip(x, lo, hi)
     offsets = np.linspace(-1.0, 1.0, int(grid))
     groups = _groups(dims_order, batch_independent, d)
-    evals = calls = 0
+    call = _CountedCost(cost_fn)
     cost = None  # cost of the current x, when known
-
-    def call(cand):
-        nonlocal evals, calls
-        c = np.asarray(cost_fn(cand), dtype=np.float64).ravel()
-        if c.shape != (cand.shape[0],) or np.any(np.isnan(c)):
-            raise ValueError(f"cost_fn must return ({cand.shape[0]},) non-NaN costs, "
-                             f"got shape {c.shape}")
-        evals += cand.shape[0]
-        calls += 1
-        return c
 
     for _ in range(int(passes)):
         for g in groups:
@@ -136,7 +145,7 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
                     cost = None  # the combined move was never scored as a whole
     if cost is None:
         cost = float(call(x[None])[0])
-    return HillClimbResult(x, cost, evals, calls)
+    return HillClimbResult(x, cost, call.evaluations, call.calls)
 
 
 @dataclass
@@ -215,17 +224,7 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
     # a lane whose last move was combined: the best single move of that batch, to fall back to
     fallback_x = [None] * k
     fallback_c = np.full(k, np.nan)
-    evals = calls = 0
-
-    def call(cand):
-        nonlocal evals, calls
-        c = np.asarray(cost_fn(cand), dtype=np.float64).ravel()
-        if c.shape != (cand.shape[0],) or np.any(np.isnan(c)):
-            raise ValueError(f"cost_fn must return ({cand.shape[0]},) non-NaN costs, "
-                             f"got shape {c.shape}")
-        evals += cand.shape[0]
-        calls += 1
-        return c
+    call = _CountedCost(cost_fn)
 
     def settle(lane, c_centre):
         """The centre's cost is known now: keep a combined move or fall back. True = kept."""
@@ -276,4 +275,4 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
         c = call(X[pending])
         for lane, cl in zip(pending, c):
             settle(lane, cl)
-    return StageClimbResult(X, cost, evals, calls)
+    return StageClimbResult(X, cost, call.evaluations, call.calls)

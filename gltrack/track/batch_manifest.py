@@ -21,6 +21,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from .options import read_toml
+
 #: the keys of a [[dataset]] table, and of [defaults] (which has no path or name)
 DATASET_KEYS = ("path", "name", "method", "frames", "options")
 DEFAULT_KEYS = ("method", "frames", "options")
@@ -77,18 +79,8 @@ def load_manifest(path, methods) -> tuple[list[dict], dict]:
     ------
     ValueError naming the file and the field.
     """
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path}: no such manifest file")
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not valid TOML: {exc}") from None
+    doc = read_toml(path, "manifest file")
     _check_table(doc, ("defaults", "dataset"), str(path))
     defaults = doc.get("defaults", {})
     _check_table(defaults, DEFAULT_KEYS, f"{path}: defaults")

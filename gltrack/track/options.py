@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 
@@ -101,3 +102,25 @@ def within(opt: Options, name: str, lo: float, hi: float, *, open_lo=False,
     if ok:
         return []
     return [f"{name} = {v} (must be in {'(' if open_lo else '['}{lo}, {hi}{')' if open_hi else ']'})"]
+
+
+def read_toml(path, what: str = "file") -> dict:
+    """The TOML document in ``path`` (a ``--config`` table, a batch manifest).
+
+    Raises
+    ------
+    ValueError naming the file: it does not exist (``what`` says what it should have been) or
+    is not valid TOML.
+    """
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: no such {what}")
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML: {exc}") from None
