@@ -261,3 +261,19 @@ def test_a_ray_actor_killed_mid_dataset_is_restarted_and_the_result_is_identical
     assert killed, "the actor was not killed"
     assert rec["status"] == "ok" and 2 <= rec["resumed"] < N, rec
     _same(root / "single" / names[2], out)
+
+
+def test_a_folder_of_datasets_stands_for_the_datasets_in_it(tmp_path):
+    from gltrack.cli.batch import expand_folders
+
+    study = tmp_path / "study"
+    for name in ("b_take", "a_take"):
+        (study / name).mkdir(parents=True)
+        (study / name / "meta.json").write_text("{}")
+    (study / "notes").mkdir()  # not a dataset: left out
+    single = study / "a_take"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert expand_folders([str(study)]) == [str(study / "a_take"), str(study / "b_take")]
+    # a dataset stays itself; a folder without datasets is kept (and fails as a dataset)
+    assert expand_folders([str(single), str(empty)]) == [str(single), str(empty)]

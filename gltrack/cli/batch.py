@@ -24,8 +24,8 @@ def add_arguments(p):
     from .common import add_dof_option
 
     p.add_argument("datasets", nargs="*", metavar="DATASET",
-                   help="dataset folders (the short form of a manifest); the results of each go "
-                        "to DIR/<folder name>")
+                   help="dataset folders, or folders of them (the short form of a manifest); "
+                        "the results of each go to DIR/<folder name>")
     p.add_argument("--manifest", metavar="STUDY.toml",
                    help="the datasets with per-dataset method, options and frames "
                         "(see gltrack.track.batch_manifest)")
@@ -60,6 +60,19 @@ def add_arguments(p):
     p.add_argument("--json", action="store_true", help="print summary.json instead of the table")
 
 
+def expand_folders(paths) -> list[str]:
+    """Dataset folders as given, except that a folder which is not a dataset itself (no
+    ``meta.json``) but holds datasets stands for those, in name order: ``gltrack batch
+    study/`` tracks every take in ``study/``. Anything else is kept and fails as a dataset."""
+    out = []
+    for d in paths:
+        folder = Path(d)
+        subs = ([] if (folder / "meta.json").is_file() or not folder.is_dir() else
+                sorted(str(p) for p in folder.iterdir() if (p / "meta.json").is_file()))
+        out.extend(subs or [str(d)])
+    return out
+
+
 def build_jobs(args, usage_error) -> list:
     """The jobs of the command line: the manifest's datasets, then the positional ones."""
     from gltrack.track.batch import Job
@@ -74,7 +87,7 @@ def build_jobs(args, usage_error) -> list:
     entries, defaults = ([], {"method": None, "frames": None, "options": None})
     if args.manifest:
         entries, defaults = load_manifest(args.manifest, METHODS)
-    for d in args.datasets:
+    for d in expand_folders(args.datasets):
         entries.append({"path": d, "name": None, "method": None, "frames": None, "options": {},
                         "where": d})
     jobs = []
