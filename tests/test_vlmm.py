@@ -390,3 +390,36 @@ def test_no_transition_across_sequences():
     glued = Vlmm.fit([np.r_[np.zeros(30), np.ones(30)].astype(np.int64)], 2, max_memory=2,
                      min_count=1, gamma=1e-3)
     assert glued.next_distribution(glued.initial_state([0]))[1] > 0.02
+
+
+def test_velocity_noise_attenuated_separately(synth_model):
+    """``lam_dx`` scales only the velocities' noise; None is the paper's single ``lam``."""
+    params, m = synth_model
+    X = m.features(params)
+    labels = m.label(X)
+    states = np.array([m.state_for(labels[max(0, i - 6):i + 1]) for i in range(len(X))])
+
+    def run(**kw):
+        return m.predict(np.random.default_rng(7), X, states, **kw)
+
+    paper, same_lam, keep_v = run(lam=0.5), run(lam=0.5, lam_dx=0.5), run(lam=0.5, lam_dx=0.0)
+    np.testing.assert_array_equal(paper[0], same_lam[0])
+    stay = m.vlmm.last_symbol[keep_v[1]] == m.vlmm.last_symbol[states]
+    assert stay.mean() > 0.5
+    # lam_dx = 0: a particle that stays in its cluster keeps its velocity exactly ...
+    np.testing.assert_array_equal(keep_v[0][stay, 4:], X[stay, 4:])
+    # ... and its angles still get the attenuated cluster noise around x + dx dt
+    d = keep_v[0][stay, :4] - (X[stay, :4] + X[stay, 4:] / 30.0)
+    assert np.all(np.std(d, axis=0) > 0)
+    np.testing.assert_allclose(d, (paper[0][stay, :4] - (X[stay, :4] + paper[0][stay, 4:] / 30.0)),
+                               atol=1e-12)
+
+
+def test_vlmm_options_lam_dx():
+    from gltrack.track.vlmm import VlmmOptions
+
+    opt = VlmmOptions(model="m.npz").validate()
+    assert opt.lam == opt.lam_dx == 0.5  # the paper's single coefficient
+    assert VlmmOptions.from_dict({"model": "m.npz", "lam_dx": 0}).lam_dx == 0.0
+    with pytest.raises(ValueError, match="lam_dx = -0.1"):
+        VlmmOptions.from_dict({"model": "m.npz", "lam_dx": -0.1})

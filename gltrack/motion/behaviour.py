@@ -12,11 +12,13 @@ Prediction (section 5) for particles carrying a feature vector and a VLMM state:
   ``N(X_t | mu_k, Sigma_k) * gamma(q_t, k)``;
 * if it is the particle's current cluster, eq. 4 local dynamics with attenuation ``lam``::
 
-      dx_{t+1} = dx_t + lam * n_dx
-      x_{t+1}  = x_t + dx_{t+1} * dt + lam * n_x,      (n_x, n_dx) = sqrt(Sigma_k) z, z ~ N(0, I)
+      dx_{t+1} = dx_t + lam_dx * n_dx
+      x_{t+1}  = x_t + dx_{t+1} * dt + lam * n_x,   (n_x, n_dx) = sqrt(Sigma_k) z, z ~ N(0, I)
 
   (velocities are in radians per second here, hence the ``dt``); ``sqrt`` is the symmetric
-  square root by eigendecomposition;
+  square root by eigendecomposition. The paper attenuates both noises by one coefficient
+  (``lam_dx = lam``, the default); :class:`gltrack.motion.vlmm_prior.VlmmPrior` has what
+  ``lam_dx = 0`` does to tracking;
 * otherwise the particle is re-sampled from the new cluster's Gaussian.
 
 The six root parameters are not modelled (the paper propagates them with plain Gaussian
@@ -231,7 +233,8 @@ class BehaviourModel:
         return lp - logsumexp(lp, axis=1, keepdims=True)
 
     def predict(self, rng: np.random.Generator, X, states, lam: float = 0.5,
-                dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                dt: float | None = None, lam_dx: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
         """Propagate particles one frame (eqs. 3 and 4, see module docstring).
 
         Parameters
@@ -240,8 +243,11 @@ class BehaviourModel:
         X : (N, 2 * n_angles) float array, current feature vectors (radians, radians/second).
         states : (N,) int array, current VLMM states (0 = no history; the current cluster is
             then taken as the most probable one for X).
-        lam : float, noise attenuation of the local dynamics.
+        lam : float, noise attenuation of the local dynamics (the angles' noise, and the
+            velocities' too unless ``lam_dx`` is given).
         dt : float or None, time step in seconds (None: 1 / fps).
+        lam_dx : float or None, attenuation of the velocities' noise (None: ``lam``, the
+            paper's single coefficient).
 
         Returns
         -------
@@ -257,6 +263,7 @@ class BehaviourModel:
         if np.any((states < 0) | (states >= self.vlmm.n_states)):
             raise ValueError("states out of range")
         dt = 1.0 / self.fps if dt is None else float(dt)
+        lam_dx = lam if lam_dx is None else float(lam_dx)
         n, a = X.shape[0], self.n_angles
 
         p = np.exp(self.transition_logprob(X, states))
@@ -274,7 +281,7 @@ class BehaviourModel:
         noise = np.einsum("nij,nj->ni", roots[nxt], z)
 
         out = np.empty_like(X)
-        dx_new = X[same, a:] + lam * noise[same, a:]
+        dx_new = X[same, a:] + lam_dx * noise[same, a:]
         out[same, a:] = dx_new
         out[same, :a] = X[same, :a] + dx_new * dt + lam * noise[same, :a]
         jump = ~same

@@ -41,7 +41,19 @@ class VlmmPrior:
     model : BehaviourModel
     dofs : gltrack.body.dofs.DofSet of the tracked body (the model's angles are found by name)
     fps : float, frame rate of the tracked data
-    lam : float, noise attenuation of the local dynamics (eq. 4)
+    lam : float, attenuation of the angles' noise in the local dynamics (eq. 4)
+    lam_dx : float or None, attenuation of the velocities' noise; None: ``lam`` (the paper's
+        eq. 4 has one coefficient). 0 keeps the velocity a particle got when it entered its
+        cluster instead of letting it random-walk: the likelihood sees poses, never
+        velocities, so a few hundred particles cannot select velocities and their noise
+        integrates into drift. With the blob fit from the true pose (``gltrack bench vlmm``
+        protocol 1, 200 particles, frames 0-89, 2 seeds) ``lam_dx = 0`` gives 59.6 mm RMS
+        against 86.6 with the paper's 0.5 on cmu_60_10, and 41.0 against 78.1 on cmu_60_13 held
+        out of training instead (0.25: 76.4; 0.86, the maximum-likelihood scale of the training
+        takes' velocity residuals: 116). It is not the default because a particle that keeps
+        its velocity overshoots when its cluster lasts longer than the motion keeps its
+        direction: on the periodic test motion of tests/test_track_vlmm.py (silhouette
+        evaluation) it tracks worse than a fixed pose (119 against 95 mm)
     root_scale : float, multiplier of the DOF set's root sigmas for the root diffusion
     other_scale : float, multiplier of the sigmas of body angles the model does not cover
 
@@ -53,8 +65,10 @@ class VlmmPrior:
     """
 
     def __init__(self, model: BehaviourModel, dofs, fps: float, *, lam: float = 0.5,
-                 root_scale: float = 1.0, other_scale: float = 1.0):
+                 lam_dx: float | None = None, root_scale: float = 1.0,
+                 other_scale: float = 1.0):
         self.model, self.dofs, self.fps, self.lam = model, dofs, float(fps), float(lam)
+        self.lam_dx = self.lam if lam_dx is None else float(lam_dx)
         if abs(model.fps - self.fps) > 1e-6 * self.fps:
             log.warning("behaviour model learnt at %g frames/s, data at %g: cluster transitions "
                         "will run at the wrong tempo (relearn with --fps %g)", model.fps,
@@ -123,7 +137,8 @@ class VlmmPrior:
             self.reset(P, rng)
         X = self.X.copy()
         X[:, :self._a] = P[:, self.idx]  # a sampler may have moved the angles since
-        Xn, sn = self.model.predict(rng, X, self.states, lam=self.lam, dt=1.0 / self.fps)
+        Xn, sn = self.model.predict(rng, X, self.states, lam=self.lam, lam_dx=self.lam_dx,
+                                    dt=1.0 / self.fps)
         out = P.copy()
         out[:, self.idx] = Xn[:, :self._a]
         out[:, :6] += rng.standard_normal((len(P), 6)) * self.root_sigma
@@ -169,7 +184,7 @@ def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
     model : BehaviourModel or path to a model .npz written by ``gltrack learn``
     dofs : DofSet of the tracked body
     fps : float, frame rate of the tracked data
-    **kwargs : ``lam``, ``root_scale``, ``other_scale`` of :class:`VlmmPrior`
+    **kwargs : ``lam``, ``lam_dx``, ``root_scale``, ``other_scale`` of :class:`VlmmPrior`
 
     The samplers of :mod:`gltrack.sample` take it directly:
     ``res = sampler.step(particles, weight_fn, rng, predict_fn=prior.predict)`` then

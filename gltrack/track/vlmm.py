@@ -64,7 +64,10 @@ class VlmmOptions(BlobEvidenceOptions):
     particles : particles per frame (= evaluations per frame outside recovery)
     evaluation : "blobs" (voxels + blob KL, the paper's) or "silhouette" (GPU XOR against the
         masks)
-    lam : attenuation of the local-dynamics noise (eq. 4)
+    lam : attenuation of the local dynamics' angle noise (eq. 4)
+    lam_dx : attenuation of its velocity noise (the paper uses ``lam`` for both; 0 keeps a
+        particle's cluster velocity: much better on the salsa takes, worse on coarse
+        clusters, see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`)
     root_scale, other_scale : multipliers of the DOF sigmas diffusing the root and the angles
         the model does not cover
     survival : target effective sample size / N that sets the weight exponent
@@ -90,6 +93,7 @@ class VlmmOptions(BlobEvidenceOptions):
     particles: int = 200
     evaluation: str = "blobs"
     lam: float = 0.5
+    lam_dx: float = 0.5
     root_scale: float = 1.0
     other_scale: float = 1.0
     survival: float = 0.3
@@ -106,7 +110,7 @@ class VlmmOptions(BlobEvidenceOptions):
             *choice(self, "evaluation", EVALUATIONS), *choice(self, "estimate", ("best", "mean")),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
-            *at_least(self, 0, "lam", "root_scale", "other_scale", "lost_threshold",
+            *at_least(self, 0, "lam", "lam_dx", "root_scale", "other_scale", "lost_threshold",
                       "lost_frames", "fit_prototypes"),
             *at_least(self, 1, "fit_inits", "headings")]
         if not self.model:
@@ -127,7 +131,7 @@ class VlmmTracker(Tracker):
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
-                               root_scale=opt.root_scale, other_scale=opt.other_scale)
+                               lam_dx=opt.lam_dx, root_scale=opt.root_scale, other_scale=opt.other_scale)
         # the prior is the whole motion step: the filter adds no diffusion of its own
         self.sampler = SIRFilter(StateSpace.from_dofs(body.dofs, dataset.fps), alpha=opt.survival)
         # the voxels place the candidates of initialisation and recovery in both evaluations
