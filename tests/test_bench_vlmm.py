@@ -38,3 +38,26 @@ def test_targets_and_tables():
     assert "   85.0" in text and "after 3 frames" in text
     res["recovery"]["vlmm_1000"]["frames_to_recover"] = None
     assert _vlmm_targets(res, quick=False)["recovery_within_30"] is False
+
+
+def test_test_take_swaps_with_the_default_clip(tmp_path):
+    """--test-take NAME tests on that training take; the default test take then trains."""
+    import pytest
+
+    from gltrack.bench.vlmm import CLIP, TRAIN_DIR, bench_vlmm, test_take_path, training_files
+
+    (tmp_path / TRAIN_DIR).mkdir(parents=True)
+    takes = [tmp_path / TRAIN_DIR / f"cmu_60_{i:02d}_salsa.bvh" for i in (1, 13)]
+    for f in takes + [tmp_path / CLIP]:
+        f.write_text("HIERARCHY\n")
+    assert test_take_path(tmp_path) == tmp_path / CLIP
+    assert training_files(tmp_path) == takes
+    t13 = test_take_path(tmp_path, "cmu_60_13")
+    assert t13 == takes[1]
+    assert training_files(tmp_path, t13) == [takes[0], tmp_path / CLIP]
+    with pytest.raises(FileNotFoundError, match=r"cmu_60_99.*cmu_60_01_salsa, cmu_60_13_salsa"):
+        test_take_path(tmp_path, "cmu_60_99")
+    with pytest.raises(FileNotFoundError, match="2 takes"):
+        test_take_path(tmp_path, "cmu_60_")
+    with pytest.raises(ValueError, match="--frames 1: must be at least 2"):
+        bench_vlmm(shared=tmp_path, frames=1)

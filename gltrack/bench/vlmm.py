@@ -174,14 +174,38 @@ def _track_run(ds, method, opts, out, seed, hooks=(), init="groundtruth"):
     return row, rms
 
 
-def load_training(root: Path, fps: float = 30.0, preset: str = "25"):
-    """The training takes of :data:`TRAIN_DIR` under ``root``: (list of (T_i, D) params, list of
-    file names, DofSet). Each take is its own sequence (no transition across takes)."""
+def test_take_path(root: Path, take: str | None = None) -> Path:
+    """The test take: :data:`CLIP`, or the take of :data:`TRAIN_DIR` whose file name starts with
+    ``take`` (e.g. ``"cmu_60_13"``; it then leaves the training set and CLIP joins it).
+
+    Raises
+    ------
+    FileNotFoundError naming the takes there are when none (or several) match.
+    """
+    if not take:
+        return root / CLIP
+    found = sorted((root / TRAIN_DIR).glob(f"{take}*.bvh"))
+    if len(found) != 1:
+        names = ", ".join(f.stem for f in sorted((root / TRAIN_DIR).glob("*.bvh"))) or "none"
+        raise FileNotFoundError(f"--test-take {take!r}: {len(found)} takes of {TRAIN_DIR} match "
+                                f"(there are: {names})")
+    return found[0]
+
+
+def training_files(root: Path, test: Path | None = None) -> list[Path]:
+    """The training takes under ``root``: those of :data:`TRAIN_DIR` and :data:`CLIP` that exist,
+    less the test take ``test`` (default CLIP), which is never trained on."""
+    files = sorted((root / TRAIN_DIR).glob("*.bvh")) + [root / CLIP]
+    test = Path(test or root / CLIP).resolve()
+    return [f for f in files if f.is_file() and f.resolve() != test]
+
+
+def load_training(root: Path, fps: float = 30.0, preset: str = "25", test: Path | None = None):
+    """The :func:`training_files` as (list of (T_i, D) params, list of file names, DofSet); each
+    take is its own sequence (no transition across takes)."""
     from gltrack.motion.retarget import load_motion
 
-    files = sorted((root / TRAIN_DIR).glob("*.bvh"))
-    test = (root / CLIP).resolve()
-    files = [f for f in files if f.resolve() != test]  # the test take is never trained on
+    files = training_files(root, test)
     if not files:
         raise FileNotFoundError(f"bench vlmm needs the training takes {TRAIN_DIR}/*.bvh in the "
                                 "shared folder (GLTRACK_SHARED or ../shared)")
@@ -210,7 +234,8 @@ def _summary(rows: list) -> dict:
 
 def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | None = None,
                seeds: int | None = None, first: int = 0, protocols=(1, 2),
-               vlmm_options: dict | None = None, only=None) -> dict:
+               vlmm_options: dict | None = None, only=None, test_take: str | None = None
+               ) -> dict:
     """The measurements of Caillette et al.'s behaviour-model tracker (see module docstring).
 
     Parameters
@@ -224,6 +249,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     protocols : which protocols to run (1, 2 or both)
     vlmm_options : extra options of every ``vlmm`` run (to measure a change of the tracker)
     only : labels of the runs to do (default all), e.g. ``["vlmm_1000"]``
+    test_take : test on this take of :data:`TRAIN_DIR` instead of :data:`CLIP`, which is then
+        trained on (:func:`test_take_path`): the same measurement on another unseen take
 
     Returns
     -------
@@ -247,8 +274,11 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
 
     from . import machine_name, shared_dir
 
+    for name, value, least in (("frames", frames, 2), ("seeds", seeds, 1)):
+        if value is not None and value < least:
+            raise ValueError(f"--{name} {value}: must be at least {least}")
     root = Path(shared) if shared else shared_dir()
-    clip = root / CLIP if root else None
+    clip = test_take_path(root, test_take) if root else None
     if clip is None or not clip.is_file():
         raise FileNotFoundError(f"bench vlmm needs {CLIP} in the shared folder "
                                 "(GLTRACK_SHARED or ../shared)")
@@ -259,7 +289,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
                            "which needs pyrender (pip install pyrender)")
     fps = 30.0
     t0 = time.perf_counter()
-    train, train_files, dofs = load_training(root, fps)
+    train, train_files, dofs = load_training(root, fps, test=clip)
     sk, _, test_all, _ = load_motion(clip, "25", fps=fps, skip_jumps=True)
     model = BehaviourModel.fit(train, fps, np.random.default_rng(seed), held_out=[test_all],
                                dof_names=dofs.names[6:])
@@ -269,7 +299,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     n_frames = min(len(test_all) - first, frames or (20 if quick else 150))
     test = test_all[first:first + n_frames]
     seeds = seeds or (1 if quick else 3)
-    out = {"machine": machine_name(), "clip": CLIP, "train_takes": train_files, "fps": fps,
+    out = {"machine": machine_name(), "clip": str(clip.relative_to(root)), "train_takes": train_files, "fps": fps,
            "train_frames": int(sum(len(s) for s in train)), "test_frames": int(n_frames),
            "test_first_frame": int(first), "test_take_frames": int(len(test_all)),
            "seed": seed, "seeds": int(seeds), "quick": bool(quick), "learn_seconds": learn_s,

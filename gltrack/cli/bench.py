@@ -25,6 +25,13 @@ def add_arguments(p):
                    help="depth / multiview: 'oracle' = true body, true first pose, the "
                         "tracker's own mesh as the subject; 'honest' = estimated body, automatic "
                         "start, a MakeHuman subject; 'both' (default) side by side")
+    p.add_argument("--frames", type=int, metavar="N",
+                   help="vlmm: frames of the test take to track (default 150; --quick 20)")
+    p.add_argument("--seeds", type=int, metavar="N",
+                   help="vlmm: tracker seeds per configuration (default 3; --quick 1)")
+    p.add_argument("--test-take", metavar="NAME",
+                   help="vlmm: test on this salsa take of ../shared/mocap/cmu_60_salsa (e.g. "
+                        "cmu_60_13) instead of cmu_60_10, which is then trained on")
 
 
 def _fmt(value, spec, width):
@@ -73,7 +80,8 @@ def _suite(name):
         return (lambda a: bench_batch(quick=a.quick, seed=a.seed)), format_table
     from gltrack.bench.vlmm import bench_vlmm, format_table
 
-    return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed)), format_table
+    return (lambda a: bench_vlmm(quick=a.quick, seed=a.seed, frames=a.frames, seeds=a.seeds,
+                                 test_take=a.test_take)), format_table
 
 
 def _suite_files(name) -> list[str]:
