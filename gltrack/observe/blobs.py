@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.special import logsumexp
 
 from gltrack.body.mesh import PARTS
 
@@ -288,12 +287,32 @@ def mixture_kl(model: Blobs, observed: Blobs) -> np.ndarray:
     return np.sum(a * (kl + np.log(np.maximum(a, 1e-12) / b)), axis=-1)
 
 
+def logsumexp(a, axis: int, keepdims: bool = False) -> np.ndarray:
+    """``log(sum(exp(a), axis))`` computed stably; scipy's version costs more in call overhead
+    than the small arrays here take to reduce (a third of a blob fit)."""
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
+    return out if keepdims else np.squeeze(out, axis=axis)
+
+
 def _log_gauss(X, mean, cov):
-    """(M, P) log N(x_m | mean_p, cov_p) for X (M, 3), mean (P, 3), cov (P, 3, 3)."""
+    """(M, P) log N(x_m | mean_p, cov_p) for X (M, d), mean (P, d), cov (P, d, d)."""
     inv = np.linalg.inv(cov)  # P small inversions instead of P * M triangular solves
-    diff = X[None, :, :] - mean[:, None, :]  # (P, M, 3)
-    maha = np.einsum("pmi,pij,pmj->pm", diff, inv, diff)
-    return (-0.5 * (maha + _logdet(cov)[:, None] + X.shape[1] * np.log(2 * np.pi))).T
+    d = X.shape[1]
+    if d == 3:
+        # the quadratic form written out over the inverse's six distinct entries: a
+        # three-operand einsum runs unoptimised loops and took half of a vlmm frame
+        dx = X[None, :, 0] - mean[:, 0, None]  # (P, M)
+        dy = X[None, :, 1] - mean[:, 1, None]
+        dz = X[None, :, 2] - mean[:, 2, None]
+        q = inv[:, :, :, None]  # (P, 3, 3, 1) broadcasts over M
+        maha = (q[:, 0, 0] * dx * dx + q[:, 1, 1] * dy * dy + q[:, 2, 2] * dz * dz
+                + 2.0 * (q[:, 0, 1] * dx * dy + q[:, 0, 2] * dx * dz + q[:, 1, 2] * dy * dz))
+    else:
+        diff = X[None, :, :] - mean[:, None, :]  # (P, M, d)
+        maha = np.sum(np.matmul(diff, inv) * diff, axis=-1)
+    return (-0.5 * (maha + _logdet(cov)[:, None] + d * np.log(2 * np.pi))).T
 
 
 #: BGR -> YUV (rows Y, U, V), grey levels; U and V centred on 0
@@ -423,7 +442,10 @@ def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
             break
         m_new = (rw.T @ X) / np.maximum(nk, 1e-300)[:, None]
         d = X[None, :, :] - m_new[:, None, :]
-        c_new = np.einsum("mp,pmi,pmj->pij", rw, d, d) / np.maximum(nk, 1e-300)[:, None, None]
+        # sum_m rw[m, p] d[p, m] d[p, m]^T as one batched matrix product (a three-operand
+        # einsum runs unoptimised loops)
+        c_new = np.matmul(np.transpose(d * rw.T[:, :, None], (0, 2, 1)), d)
+        c_new /= np.maximum(nk, 1e-300)[:, None, None]
         mean[ok], cov[ok] = m_new[ok], c_new[ok] + eye
         pi = np.where(ok, nk, min_support)
         pi = pi / pi.sum()
