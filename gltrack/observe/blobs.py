@@ -292,7 +292,8 @@ def logsumexp(a, axis: int, keepdims: bool = False) -> np.ndarray:
     than the small arrays here take to reduce (a third of a blob fit)."""
     m = np.max(a, axis=axis, keepdims=True)
     m = np.where(np.isfinite(m), m, 0.0)
-    out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
+    with np.errstate(divide="ignore"):  # log(0) = -inf where every term is -inf, as scipy
+        out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
     return out if keepdims else np.squeeze(out, axis=axis)
 
 
