@@ -299,7 +299,8 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     n_frames = min(len(test_all) - first, frames or (20 if quick else 150))
     test = test_all[first:first + n_frames]
     seeds = seeds or (1 if quick else 3)
-    out = {"machine": machine_name(), "clip": str(clip.relative_to(root)), "train_takes": train_files, "fps": fps,
+    out = {"machine": machine_name(), "clip": str(clip.relative_to(root)),
+           "train_takes": train_files, "fps": fps,
            "train_frames": int(sum(len(s) for s in train)), "test_frames": int(n_frames),
            "test_first_frame": int(first), "test_take_frames": int(len(test_all)),
            "seed": seed, "seeds": int(seeds), "quick": bool(quick), "learn_seconds": learn_s,

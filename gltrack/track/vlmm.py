@@ -131,7 +131,8 @@ class VlmmTracker(Tracker):
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
-                               lam_dx=opt.lam_dx, root_scale=opt.root_scale, other_scale=opt.other_scale)
+                               lam_dx=opt.lam_dx, root_scale=opt.root_scale,
+                               other_scale=opt.other_scale)
         # the prior is the whole motion step: the filter adds no diffusion of its own
         self.sampler = SIRFilter(StateSpace.from_dofs(body.dofs, dataset.fps), alpha=opt.survival)
         # the voxels place the candidates of initialisation and recovery in both evaluations
