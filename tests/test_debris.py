@@ -165,7 +165,9 @@ def test_synth_refuses_what_does_not_fit_in_memory(tmp_path, monkeypatch, capsys
 def _clip(tmp_path):
     from test_synth import _write_clip
 
-    return _write_clip(tmp_path / "clip.bvh", T=30)
+    # long enough that the synth cannot finish between its first frame on disk and the signal
+    # (30 frames could, on an idle machine: the interrupted run then exited 0)
+    return _write_clip(tmp_path / "clip.bvh", T=240)
 
 
 def _synth_proc(clip, out):
