@@ -5,6 +5,7 @@ import pytest
 from gltrack.body.dofs import make_dofs
 from gltrack.body.skeleton import default_skeleton
 from gltrack.sample import hill_climb, hill_climb_order
+from gltrack.sample.hillclimb import hill_climb_lanes
 
 
 def quadratic(center, scale):
@@ -199,3 +200,46 @@ def test_stage_climb_validates():
         stage_climb(lambda X: X[:, 0], np.zeros(3), [[0, 5]], 0.1)
     with pytest.raises(ValueError, match="finite"):
         stage_climb(lambda X: X[:, 0], np.array([np.nan, 0.0]), [[0]], 0.1)
+
+
+def test_hill_climb_lanes_climb_each_start_as_alone_in_the_calls_of_one():
+    """K lanes give exactly the K one-by-one climbs (coupled cost, limits, batched groups, a
+    lane whose last move was combined), in the calls of one climb."""
+    rng = np.random.default_rng(3)
+    d, k = 6, 4
+    center = rng.uniform(-0.4, 0.4, d)
+
+    def coupled(X):
+        e = X - center
+        return np.sum(e ** 2, axis=1) + 0.6 * e[:, 0] * e[:, 1] + 0.3 * np.abs(e[:, 2] * e[:, 5])
+
+    X0 = rng.uniform(-0.8, 0.8, (k, d))
+    steps = rng.uniform(0.2, 0.6, (k, d))
+    order = [0, 1, (2, 3), (4, 5)]
+    lo, hi = np.full(d, -0.7), np.full(d, 0.7)
+    sizes = []
+
+    def counted(X):
+        sizes.append(len(X))
+        return coupled(X)
+
+    res = hill_climb_lanes(counted, X0, order, steps, levels=3, grid=5, batch_independent=True,
+                           lower=lo, upper=hi, passes=2)
+    alone = [hill_climb(coupled, X0[i], order, steps[i], levels=3, grid=5,
+                        batch_independent=True, lower=lo, upper=hi, passes=2) for i in range(k)]
+    for i, a in enumerate(alone):
+        np.testing.assert_array_equal(res.X[i], a.x)
+        assert res.cost[i] == a.cost
+    assert res.evaluations == sum(a.evaluations for a in alone) == sum(sizes)
+    assert res.calls == alone[0].calls == len(sizes)
+    # every call but the last (the combined moves' check) holds the grids of all K lanes
+    assert sizes[0] == k * 5 and all(s % k == 0 for s in sizes[:-1])
+    # the lanes really differ: the starts matter
+    assert np.ptp(res.cost) > 0
+
+
+def test_hill_climb_lanes_validates():
+    with pytest.raises(ValueError, match="start poses"):
+        hill_climb_lanes(lambda X: X[:, 0], np.zeros(3), [0], 0.1)
+    with pytest.raises(ValueError, match="one pose"):
+        hill_climb(lambda X: X[:, 0], np.zeros((2, 3)), [0], 0.1)

@@ -105,47 +105,85 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
     HillClimbResult. ``evaluations == passes * levels * grid * (number of dims)`` plus one when
     the last step was a batched group (its combined pose is scored once to report its cost).
     """
-    x = np.array(x0, dtype=np.float64).ravel()
-    d = x.size
-    if not np.all(np.isfinite(x)):
+    x = np.array(x0, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"x0 must be one pose (D,), got shape {x.shape}; see hill_climb_lanes")
+    r = hill_climb_lanes(cost_fn, x[None], dims_order, steps, levels=levels, grid=grid,
+                         shrink=shrink, batch_independent=batch_independent, lower=lower,
+                         upper=upper, passes=passes)
+    return HillClimbResult(r.X[0], float(r.cost[0]), r.evaluations, r.calls)
+
+
+def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: int = 5,
+                     shrink: float = 0.4, batch_independent: bool = False, lower=None,
+                     upper=None, passes: int = 1) -> "StageClimbResult":
+    """:func:`hill_climb` of K start poses (lanes) at once: one ``cost_fn`` call per step.
+
+    Every lane walks exactly the search :func:`hill_climb` would walk from its start (the lanes
+    never mix), but the candidates of all lanes for the same dim (or group) and level go into
+    one call. Why: a GPU scores a tile of candidates in about the time of one, so K climbs
+    (heading hypotheses, evidence proposals) cost the calls of one.
+
+    Parameters
+    ----------
+    cost_fn : callable, (M, D) float64 -> (M,) float
+    X0 : (K, D) float, start poses
+    dims_order, levels, grid, shrink, batch_independent, lower, upper, passes :
+        as in :func:`hill_climb`
+    steps : float, (D,) or (K, D) float, half-width of the coarsest grid per dim (and lane)
+
+    Returns
+    -------
+    StageClimbResult: ``X`` (K, D), ``cost`` (K,), ``evaluations`` (the sum of the lanes'
+    :func:`hill_climb` evaluations), ``calls`` (those of one lane).
+    """
+    X = np.array(X0, dtype=np.float64)
+    if X.ndim != 2 or X.shape[0] < 1:
+        raise ValueError(f"X0 must be (K, D) start poses, got shape {X.shape}")
+    k, d = X.shape
+    if not np.all(np.isfinite(X)):
         raise ValueError("x0 must be finite")
     if int(levels) < 1 or int(grid) < 2 or not 0 < shrink < 1 or int(passes) < 1:
         raise ValueError(f"need levels >= 1, grid >= 2, 0 < shrink < 1, passes >= 1; got "
                          f"{levels}, {grid}, {shrink}, {passes}")
-    steps = np.broadcast_to(np.asarray(steps, dtype=np.float64), (d,))
+    steps = np.broadcast_to(np.asarray(steps, dtype=np.float64), (k, d))
     lo = np.full(d, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
     hi = np.full(d, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
-    x = np.clip(x, lo, hi)
+    X = np.clip(X, lo, hi)
     offsets = np.linspace(-1.0, 1.0, int(grid))
     groups = _groups(dims_order, batch_independent, d)
     call = _CountedCost(cost_fn)
-    cost = None  # cost of the current x, when known
+    cost = np.full(k, np.nan)  # cost of each lane's current pose, NaN = not known
+    lanes = np.arange(k)
 
     for _ in range(int(passes)):
         for g in groups:
             gi = np.array(g)
+            n = gi.size * offsets.size
             for level in range(int(levels)):
-                h = steps[gi] * shrink ** level
-                vals = np.clip(x[gi, None] + h[:, None] * offsets, lo[gi, None], hi[gi, None])
-                cand = np.repeat(x[None], gi.size * offsets.size, axis=0)
-                rows = np.arange(cand.shape[0])
-                cand[rows, np.repeat(gi, offsets.size)] = vals.ravel()
-                c = call(cand).reshape(gi.size, offsets.size)
+                h = steps[:, gi] * shrink ** level  # (K, g)
+                vals = np.clip(X[:, gi, None] + h[:, :, None] * offsets, lo[gi, None],
+                               hi[gi, None])  # (K, g, grid)
+                cand = np.repeat(X, n, axis=0).reshape(k, n, d)
+                cand[:, np.arange(n), np.repeat(gi, offsets.size)] = vals.reshape(k, n)
+                c = call(cand.reshape(k * n, d)).reshape(k, gi.size, offsets.size)
                 # among equal costs take the candidate nearest the current value
-                tie = np.where(c == c.min(axis=1, keepdims=True), np.abs(offsets), np.inf)
-                best = np.argmin(tie, axis=1)
+                tie = np.where(c == c.min(axis=2, keepdims=True), np.abs(offsets), np.inf)
+                best = np.argmin(tie, axis=2)  # (K, g)
+                cb = np.take_along_axis(c, best[:, :, None], axis=2)[:, :, 0]
+                vb = np.take_along_axis(vals, best[:, :, None], axis=2)[:, :, 0]
                 # a move must beat the current cost (when known), so a flat or noisy cost
                 # does not make the pose drift
-                for k, i in enumerate(gi):
-                    if cost is None or c[k, best[k]] < cost:
-                        x[i] = vals[k, best[k]]
+                move = np.isnan(cost)[:, None] | (cb < cost[:, None])
+                X[:, gi] = np.where(move, vb, X[:, gi])
                 if gi.size == 1:
-                    cost = float(c[0, best[0]]) if cost is None else min(cost, float(c[0, best[0]]))
+                    cost = np.where(np.isnan(cost), cb[:, 0], np.fmin(cost, cb[:, 0]))
                 else:
-                    cost = None  # the combined move was never scored as a whole
-    if cost is None:
-        cost = float(call(x[None])[0])
-    return HillClimbResult(x, cost, call.evaluations, call.calls)
+                    cost[:] = np.nan  # the combined move was never scored as a whole
+    todo = lanes[np.isnan(cost)]
+    if todo.size:
+        cost[todo] = call(X[todo])
+    return StageClimbResult(X, cost, call.evaluations, call.calls)
 
 
 @dataclass

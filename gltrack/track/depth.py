@@ -52,7 +52,7 @@ from gltrack.observe.people import pick_person
 from gltrack.observe.depth import foreground_points
 from gltrack.observe.depth_view import DepthLikelihood, DepthObservation
 from gltrack.render.engine import DepthCostParams
-from gltrack.sample.hillclimb import hill_climb, stage_climb
+from gltrack.sample.hillclimb import hill_climb, hill_climb_lanes, stage_climb
 from gltrack.sample.partitions import default_partitions, hill_climb_order
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
@@ -334,30 +334,22 @@ class HillClimbDepthTracker(Tracker):
         Why: a subject turning faster than the prediction allows leaves the true heading
         outside the coarse grid, and a wrong heading is a deep local minimum of the depth cost
         (a side view fits either way round), which hill climbing from one start cannot leave.
+        The hypotheses climb side by side (:func:`hill_climb_lanes`: each exactly as alone, all
+        in the calls of one); the one nearest the prediction keeps the root unless another
+        explains the depth clearly better (:meth:`pick_heading`): a side view fits about as
+        well turned either way.
 
         Returns
         -------
         x : (D,) float64, evaluations : int, calls : int
         """
         d = self.body.dofs
-        yaw = d.index("pelvis_ry") if "pelvis_ry" in d.names else 3
         root = [i for i in self.order if isinstance(i, int) and (i < 3 or i in self._root_rot)]
-        h = self.opt.heading_hypotheses
-        width = 2.0 * steps[yaw]
-        results, evals, calls = [], 0, 0
-        for k in range(h):
-            x0 = np.array(x, dtype=np.float64)
-            x0[yaw] = np.clip(x0[yaw] + (k - (h - 1) / 2) * width, d.lower[yaw], d.upper[yaw])
-            r = self._climb(cost, x0, root, steps, levels)
-            evals, calls = evals + r.evaluations, calls + r.calls
-            results.append(r)
-        # the start nearest the prediction keeps the root unless another explains the depth
-        # clearly better: a side view fits about as well turned either way
-        best = results[(h - 1) // 2]
-        clear = [r for r in results if r.cost < best.cost - self.opt.heading_margin]
-        if clear:
-            best = min(clear, key=lambda r: r.cost)
-        return best.x, evals, calls
+        r = hill_climb_lanes(cost, self.heading_starts(x, steps), root, steps, levels=levels,
+                             grid=self.opt.grid, shrink=self.opt.shrink,
+                             batch_independent=self.opt.batch_limbs, lower=d.lower,
+                             upper=d.upper, passes=self.opt.passes)
+        return r.X[self.pick_heading(r.cost)], r.evaluations, r.calls
 
     def search_steps(self) -> np.ndarray:
         """(D,) half-widths of the coarsest hill-climbing grid: ``search_sigmas`` inter-frame
