@@ -21,7 +21,7 @@ from gltrack.evidence.ik import chain_dofs, part_chains, ut_ik
 from gltrack.evidence.parts import PART_CLASSES, PART_NAMES, Detections, PartModel
 from gltrack.evidence.synthetic import default_depth_camera, render_frames
 from gltrack.render.reference import render_candidates
-from gltrack.sample.hillclimb import hill_climb
+from gltrack.sample.hillclimb import hill_climb, hill_climb_lanes
 
 
 @pytest.fixture(scope="module")
@@ -494,3 +494,48 @@ def test_reach_gate_skips_unreachable_detections(body, ep_problem):
     assert [(a["part"], a["detection"]) for a in both.accepted] == [("l_hand", 1)]
     assert np.linalg.norm(pm.positions(both.x)[0][1] - truth[1]) < 0.03
 
+
+
+def test_speculative_batches_give_the_one_by_one_result(body, ep_problem):
+    """``refine_many`` + ``speculate``: the proposals of a pass climb side by side
+    (:func:`hill_climb_lanes`) but are accepted in the one-by-one greedy order, so the result is
+    the sequential loop's, with fewer cost calls."""
+    sk, dofs, kin, pm, mesh = body
+    x_true, x0, cost, hc, sig = ep_problem
+    truth = pm.positions(x_true)[0]
+    x_hc, c_hc, _ = hc(x0)
+    det = Detections(np.array([[0.5, 1.0, 1.0], truth[1], truth[2] + [0.01, 0, 0],
+                               truth[3] + [0.2, 0.1, 0]]), ["hand", "hand", "hand", "foot"])
+    calls = {"seq": 0, "lanes": 0}
+
+    def counting(key):
+        def fn(X):
+            calls[key] += 1
+            return cost(X)
+        return fn
+
+    def hc_seq(x):
+        r = hill_climb(counting("seq"), x, list(range(dofs.size)), 2 * sig, levels=3, grid=5,
+                       lower=dofs.lower, upper=dofs.upper)
+        return r.x, r.cost, r.evaluations
+
+    def many(X):
+        r = hill_climb_lanes(counting("lanes"), X, list(range(dofs.size)), 2 * sig, levels=3,
+                             grid=5, lower=dofs.lower, upper=dofs.upper)
+        return r.X, r.cost, r.evaluations, r.calls
+
+    kw = dict(sigma=5 * sig, chains=part_chains(sk, dofs), lower=dofs.lower, upper=dofs.upper,
+              cost_best=c_hc, max_passes=1)
+    seq = evidence_propagation(x_hc, det, pm.part_fns(), PART_CLASSES, cost, hc_seq, **kw)
+    spec = evidence_propagation(x_hc, det, pm.part_fns(), PART_CLASSES, cost, hc_seq,
+                                refine_many=many, speculate=True, **kw)
+    # two acceptances: the proposals after the first are proposed again from its pose
+    assert [(a["part"], a["detection"]) for a in seq.accepted][0] == ("l_hand", 1)
+    assert len(seq.accepted) == 2
+    assert spec.accepted == seq.accepted
+    np.testing.assert_array_equal(spec.x, seq.x)
+    assert spec.cost == seq.cost < 0.5 * c_hc
+    # a proposal refined before the acceptance and again after it costs evaluations ...
+    assert spec.evaluations >= seq.evaluations
+    # ... but the proposals of a batch share their calls
+    assert 0 < calls["lanes"] < calls["seq"]

@@ -82,7 +82,7 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                          max_passes: int = 3, ik_kwargs: dict | None = None,
                          margin: float = 0.0, control: bool = False,
                          reach: dict | None = None, nearest: bool = False,
-                         refine_many=None) -> EPResult:
+                         refine_many=None, speculate: bool = False) -> EPResult:
     """Greedy evidence propagation from classified part detections.
 
     Parameters
@@ -127,6 +127,13 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         one. Every proposal of a pass then starts from the same best pose, so a pass accepts
         only the best of them (the others were proposed from a pose that is no longer the
         best); the next pass proposes again from the new one.
+    speculate : bool, with ``refine_many``: keep the one-by-one greedy order instead. The
+        pass's remaining proposals are refined together from the current best pose and taken
+        in order; when one is accepted, those after it are proposed and refined again from the
+        new best pose. With ``refine_many`` the batched twin of ``hill_climb_fn`` (e.g.
+        :func:`gltrack.sample.hillclimb.hill_climb_lanes`) the result is the one-by-one
+        loop's, in one batch of engine calls per acceptance instead of one per proposal
+        (acceptances are rare: most proposals are refused).
 
     Returns
     -------
@@ -155,6 +162,25 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         return np.concatenate([np.asarray(part_fns[n](x[None]), dtype=np.float64).reshape(1, 3)
                                for n in names]) if names else np.zeros((0, 3))
 
+    def propose(name, j):
+        return ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
+                     dofs=None if chains is None else chains[name], lower=lower, upper=upper,
+                     **ik_kwargs)
+
+    def accept(name, j, ik, x_new, c_new):
+        """``x_new`` (cost ``c_new``) replaces the best pose: detection ``j`` is ``name``."""
+        nonlocal x_best, cost_best, used
+        c_new = float(c_new)
+        log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j, det.classes[j],
+                  cost_best, c_new)
+        accepted.append({"part": name, "detection": int(j), "class": det.classes[j],
+                         "cost_before": cost_best, "cost_after": c_new,
+                         "ik_residual": float(np.linalg.norm(ik.residual))})
+        x_best, cost_best = np.asarray(x_new, dtype=np.float64).ravel(), c_new
+        used[j] = True
+        # the new pose may explain other detections too
+        used |= ~prune_explained(det.points, parts_of(x_best), prune_radius)
+
     for _ in range(int(max_passes)):
         improved = False
         open_ = ~used & prune_explained(det.points, parts_of(x_best), prune_radius)
@@ -177,47 +203,44 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             evals += int(e)
             if float(c_c) < cost_best:
                 x_best, cost_best = np.asarray(x_c, dtype=np.float64).ravel(), float(c_c)
+        if refine_many is not None and speculate:
+            pending = cands
+            while pending:
+                pending = [(n, j) for n, j in pending if not used[j]]
+                if not pending:
+                    break
+                iks = [propose(name, j) for name, j in pending]
+                X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]))
+                evals += int(e)
+                won = next((i for i, c in enumerate(c_new) if float(c) < cost_best - margin),
+                           None)
+                if won is None:
+                    break
+                name, j = pending[won]
+                accept(name, j, iks[won], X_new[won], c_new[won])
+                improved = True
+                pending = pending[won + 1:]
+            cands = []
         if refine_many is not None and cands:
-            iks = [ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
-                         dofs=None if chains is None else chains[name], lower=lower,
-                         upper=upper, **ik_kwargs) for name, j in cands]
+            iks = [propose(name, j) for name, j in cands]
             X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]))
             evals += int(e)
             c_new = np.asarray(c_new, dtype=np.float64)
             b = int(np.argmin(c_new))  # the first of equal costs: the detector's order
             if c_new[b] < cost_best - margin:
                 name, j = cands[b]
-                log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j,
-                          det.classes[j], cost_best, c_new[b])
-                accepted.append({"part": name, "detection": int(j), "class": det.classes[j],
-                                 "cost_before": cost_best, "cost_after": float(c_new[b]),
-                                 "ik_residual": float(np.linalg.norm(iks[b].residual))})
-                x_best = np.asarray(X_new[b], dtype=np.float64).ravel()
-                cost_best = float(c_new[b])
-                used[j] = True
+                accept(name, j, iks[b], X_new[b], c_new[b])
                 improved = True
-                used |= ~prune_explained(det.points, parts_of(x_best), prune_radius)
             cands = []
         for name, j in cands:
             if used[j]:
                 continue
-            ik = ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
-                       dofs=None if chains is None else chains[name], lower=lower, upper=upper,
-                       **ik_kwargs)
+            ik = propose(name, j)
             x_new, c_new, e = hill_climb_fn(ik.x)
             evals += int(e)
-            c_new = float(c_new)
-            if c_new < cost_best - margin:
-                log.debug("EP: %s <- detection %d (%s): cost %.4g -> %.4g", name, j,
-                          det.classes[j], cost_best, c_new)
-                accepted.append({"part": name, "detection": int(j), "class": det.classes[j],
-                                 "cost_before": cost_best, "cost_after": c_new,
-                                 "ik_residual": float(np.linalg.norm(ik.residual))})
-                x_best, cost_best = np.asarray(x_new, dtype=np.float64).ravel(), c_new
-                used[j] = True
+            if float(c_new) < cost_best - margin:
+                accept(name, j, ik, x_new, c_new)
                 improved = True
-                # the new pose may explain other detections too
-                used |= ~prune_explained(det.points, parts_of(x_best), prune_radius)
         if not improved:
             break
     return EPResult(x_best, cost_best, evals, accepted)

@@ -49,6 +49,7 @@ from gltrack.evidence.associate import evidence_propagation
 from gltrack.evidence.classifier import PartClassifier
 from gltrack.evidence.ik import part_chains, part_reach
 from gltrack.evidence.parts import PART_CLASSES, PartModel
+from gltrack.sample.hillclimb import hill_climb, hill_climb_lanes
 
 from .base import FrameEstimate
 from .depth import DepthOptions, HillClimbDepthTracker
@@ -141,8 +142,6 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
         steps = self.search_steps()
 
         def refine(x):
-            from gltrack.sample.hillclimb import hill_climb
-
             res = hill_climb(cost, x, self.order, steps,
                              levels=opt.refine_levels, grid=opt.grid, shrink=opt.shrink,
                              batch_independent=opt.batch_limbs, lower=d.lower, upper=d.upper)
@@ -152,12 +151,22 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
 
     def _refine_many_fn(self, x_pred):
         """``X (K, D) -> (X (K, D), costs (K,), evaluations, calls)``: the proposals' short
-        climbs, all in the same engine calls (``stages="parts"``)."""
+        climbs, all in the same engine calls. ``stages="chain"``: each proposal climbs exactly
+        as :meth:`_refine_fn` would climb it alone (:func:`hill_climb_lanes`); ``"parts"``:
+        one stage climb (:func:`gltrack.sample.hillclimb.stage_climb`)."""
+        opt = self.opt
         cost = self.objective(x_pred)
         steps = self.search_steps()
+        d = self.body.dofs
 
         def refine_many(X):
-            r = self._stage_climb(cost, X, self.stage_dofs, steps, self.opt.refine_levels)
+            if opt.stages == "parts":
+                r = self._stage_climb(cost, X, self.stage_dofs, steps, opt.refine_levels)
+            else:
+                r = hill_climb_lanes(cost, X, self.order, steps, levels=opt.refine_levels,
+                                     grid=opt.grid, shrink=opt.shrink,
+                                     batch_independent=opt.batch_limbs, lower=d.lower,
+                                     upper=d.upper)
             return r.X, r.cost, r.evaluations, r.calls
 
         return refine_many
@@ -183,8 +192,8 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
             prune_radius=self.opt.prune_radius, cost_best=c_best, lower=self.body.dofs.lower,
             upper=self.body.dofs.upper, max_passes=self.opt.max_passes,
             margin=self.opt.accept_margin, control=self.opt.control_refine, reach=self.reach,
-            nearest=self.opt.nearest_part,
-            refine_many=self._refine_many_fn(x_pred) if self.opt.stages == "parts" else None)
+            nearest=self.opt.nearest_part, refine_many=self._refine_many_fn(x_pred),
+            speculate=self.opt.stages == "chain")
         self.accepted_total += len(ep.accepted)
         self._accept(ep.x)
         info = {"detections": int(len(det.points)), "accepted": [a["part"] for a in ep.accepted],
