@@ -234,8 +234,8 @@ def _summary(rows: list) -> dict:
 
 def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | None = None,
                seeds: int | None = None, first: int = 0, protocols=(1, 2),
-               vlmm_options: dict | None = None, only=None, test_take: str | None = None
-               ) -> dict:
+               vlmm_options: dict | None = None, only=None, test_take: str | None = None,
+               learn_options: dict | None = None) -> dict:
     """The measurements of Caillette et al.'s behaviour-model tracker (see module docstring).
 
     Parameters
@@ -249,6 +249,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     protocols : which protocols to run (1, 2 or both)
     vlmm_options : extra options of every ``vlmm`` run (to measure a change of the tracker)
     only : labels of the runs to do (default all), e.g. ``["vlmm_1000"]``
+    learn_options : extra keyword arguments of :meth:`BehaviourModel.fit` (e.g. ``k_max``)
     test_take : test on this take of :data:`TRAIN_DIR` instead of :data:`CLIP`, which is then
         trained on (:func:`test_take_path`): the same measurement on another unseen take
 
@@ -292,7 +293,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
     train, train_files, dofs = load_training(root, fps, test=clip)
     sk, _, test_all, _ = load_motion(clip, "25", fps=fps, skip_jumps=True)
     model = BehaviourModel.fit(train, fps, np.random.default_rng(seed), held_out=[test_all],
-                               dof_names=dofs.names[6:])
+                               dof_names=dofs.names[6:], **(learn_options or {}))
     learn_s = time.perf_counter() - t0
     sweep = model.memory_sweep(train, [test_all], [0, 1, 2, 3, 5, 8, 10] if quick else
                                list(range(0, 16)))
@@ -305,6 +306,7 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
            "test_first_frame": int(first), "test_take_frames": int(len(test_all)),
            "seed": seed, "seeds": int(seeds), "quick": bool(quick), "learn_seconds": learn_s,
            "vlmm_options": dict(vlmm_options or {}),
+           "learn_options": dict(learn_options or {}),
            "model": model.report(), "entropy_vs_memory": sweep, "protocol1": {},
            "protocol2": {}, "recovery": {}}
     with tempfile.TemporaryDirectory(prefix="gltrack-bench-vlmm-") as tmp:
