@@ -261,3 +261,15 @@ def test_bad_body_argument(runs, tmp_path, capsys):
     err = capsys.readouterr().err
     assert str(bad) in err and "skeleton.offsets" in err
     assert not (tmp_path / "y").exists()
+
+
+def test_with_lod_rebuilds_only_the_surface():
+    body = BodyModel.build(default_skeleton(1.62, shoulder_width=0.36), "38", lod=1,
+                           girth_scale=1.15)
+    assert body.with_lod(1) is body
+    coarse = body.with_lod(0)
+    assert coarse.lod == 0 and coarse.mesh.n_faces < body.mesh.n_faces
+    assert coarse.skeleton is body.skeleton and coarse.dofs.preset == "38"
+    assert coarse.girth_scale == 1.15 and coarse.girths == body.girths
+    want = BodyModel.build(body.skeleton, "38", lod=0, girth_scale=1.15)
+    np.testing.assert_array_equal(coarse.mesh.vertices, want.mesh.vertices)

@@ -334,3 +334,30 @@ def test_root_sigma_scale_widens_only_the_pelvis_rotation(ds, ctx):
         DepthOptions(heading_hypotheses=0).validate()
     with pytest.raises(ValueError, match="heading_margin"):
         DepthOptions(heading_margin=-1.0).validate()
+
+
+def test_mesh_lod_is_the_surface_the_depth_engine_scores(ds, ctx):
+    from gltrack.body.model import body_from_meta
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    d = Dataset.open(ds)
+    body = body_from_meta(d.body, None)
+    x0 = d.groundtruth()["params"][0]
+    X = np.repeat(x0[None], 5, axis=0)
+    X[1:, 0] += np.array([0.03, 0.06, 0.1, 0.15])
+    costs = {}
+    for lod in (0, 1):
+        tr = HillClimbDepthTracker(d, body, ctx, DepthOptions(mesh_lod=lod))
+        try:
+            tr.observe(0, x0)
+            costs[lod] = tr.depth_cost(X)
+            assert tr.likelihood.engine.mesh is tr.body.mesh
+            assert tr.body.mesh.n_faces == body.with_lod(lod).mesh.n_faces
+        finally:
+            tr.close()
+    assert body.with_lod(0).mesh.n_faces < body.with_lod(1).mesh.n_faces
+    # the coarser surface ranks the shifted poses the same way, with other costs
+    assert np.all(np.diff(costs[0]) > 0) and np.all(np.diff(costs[1]) > 0)
+    assert not np.allclose(costs[0], costs[1])
+    with pytest.raises(ValueError, match="mesh_lod"):
+        DepthOptions(mesh_lod=3).validate()

@@ -110,7 +110,7 @@ def test_options_are_validated(dataset, tmp_path):
     cfg = tmp_path / "bad.toml"
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
                  "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n",
-                 "iou_tile = 48\n"):
+                 "iou_tile = 48\n", "mesh_lod = 3\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
@@ -171,6 +171,36 @@ def test_weights_follow_eq2_and_prefer_the_true_pose(dataset, ctx):
         assert not np.array_equal(tr.scores(X)[0], e_s)
     finally:
         tr.close()
+
+
+def test_mesh_lod_is_the_mesh_the_engine_scores(dataset, ctx):
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = dataset
+    ds = Dataset.open(path)
+    rng = np.random.default_rng(5)
+    X = np.repeat(P[3][None], 8, axis=0)
+    X[1:] += rng.normal(0.0, 0.15, X[1:].shape) * (np.arange(8)[1:, None] / 4.0)
+    X = body.dofs.validate(X)
+    e_s = {}
+    for lod in (0, 1):
+        tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, mesh_lod=lod),
+                        np.random.default_rng(0))
+        try:
+            assert tr.engine.mesh is tr.body.mesh
+            assert tr.body.mesh.n_faces == body.with_lod(lod).mesh.n_faces
+            assert tr.body.skeleton is body.skeleton
+            tr.start(0, P[0])
+            tr.observe(3)
+            e_s[lod] = tr.scores(X)[0]
+        finally:
+            tr.close()
+    assert body.with_lod(0).mesh.n_faces < body.mesh.n_faces
+    # the coarser surface still prefers the true pose (the data was drawn with lod 1) ...
+    assert np.argmin(e_s[0]) == 0
+    # ... and it is a different surface
+    assert not np.allclose(e_s[0], e_s[1])
 
 
 def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):

@@ -120,6 +120,8 @@ GIRTH_ASPECT = {
 # level of detail. Triangles per segment = 2 * slices * (2 * cap + body); 6 large + 13 small
 # segments give lod 0: 1008, lod 1: 1968, lod 2: 7872 triangles.
 _LOD = {0: (8, 6, 1, 2), 1: (10, 8, 2, 2), 2: (20, 16, 4, 4)}
+#: The levels of detail :func:`make_body_mesh` builds.
+MESH_LODS = tuple(sorted(_LOD))
 
 _UP = np.array([0.0, 1.0, 0.0])
 _X = np.array([1.0, 0.0, 0.0])

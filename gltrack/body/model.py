@@ -72,6 +72,16 @@ class BodyModel:
                          self.markers, self.lod, self.girth_scale, dict(self.girths),
                          None if shown is whole else whole)
 
+    def with_lod(self, lod: int) -> "BodyModel":
+        """The same body (skeleton, DOF preset, girths) with its procedural mesh at level of
+        detail ``lod`` (:func:`make_body_mesh`); ``self`` when it already has it. The markers
+        move with the surface (they sit on it), so marker errors are only comparable between
+        bodies of one ``lod``."""
+        if int(lod) == self.lod:
+            return self
+        return BodyModel.build(self.skeleton, self.dofs.preset, int(lod),
+                               girth_scale=self.girth_scale, girths=self.girths)
+
     def pose(self, params) -> Pose:
         return self.kin.forward(params)
 

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gltrack.body.mesh import MESH_LODS
 from gltrack.body.poses import canonical_poses
 from gltrack.gl.programs import ProgramCache
 from gltrack.observe.blobs import BlobModel, place_on_centroid
@@ -121,6 +122,9 @@ class DepthOptions(Options):
         (the Jacobi steps of coupled DOFs fall behind fast motion; climbing the root stage
         again after the heading lanes gave hop 0.059 m, salsa 0.065 m); on llvmpipe the time
         goes into the candidates, not the calls, so it bought no speed there either
+    mesh_lod : level of detail of the procedural mesh the engine scores with
+        (:func:`gltrack.body.mesh.make_body_mesh`: 0 = 1008 triangles, 1 = 1968, 2 = 7872);
+        the run's body record keeps its own
     """
 
     tile: int = 64
@@ -150,11 +154,13 @@ class DepthOptions(Options):
     init_keep: int = 2
     init_depth_offset: float = 0.1
     stages: str = "chain"
+    mesh_lod: int = 1
 
     def problems(self):
         return super().problems() + [
             *choice(self, "tile", (16, 32, 64, 128, 256)),
             *choice(self, "stages", ("parts", "chain")),
+            *choice(self, "mesh_lod", MESH_LODS),
             *positive(self, "scale", "search_sigmas", "root_sigma_scale"),
             *within(self, "shrink", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 1, "levels", "passes", "heading_hypotheses", "init_headings",
@@ -179,14 +185,14 @@ class HillClimbDepthTracker(Tracker):
 
     def __init__(self, dataset, body, ctx, options: DepthOptions | None = None, rng=None):
         self.opt = (options or DepthOptions()).validate()
-        self.body = body
+        self.body = body.with_lod(self.opt.mesh_lod)
         self.ctx = ctx
         o = self.opt
         self.obs = DepthObservation(dataset, bg_tolerance=o.bg_tolerance, bg_sigmas=o.bg_sigmas,
                                     range_noise_2m=o.range_noise_2m)
         self.programs = ProgramCache(ctx)
         self.likelihood = DepthLikelihood(
-            ctx, body, self.obs.pinhole, tile=o.tile, crop=o.crop, area_unit=o.area_unit,
+            ctx, self.body, self.obs.pinhole, tile=o.tile, crop=o.crop, area_unit=o.area_unit,
             params=DepthCostParams(scale=o.scale, penalty=o.penalty, smooth=o.smooth),
             programs=self.programs)
         self.sigma = body.dofs.sigma_at(dataset.fps).copy()

@@ -71,6 +71,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from gltrack.body.mesh import MESH_LODS
 from gltrack.body.poses import canonical_poses
 from gltrack.motion.vlmm_prior import vlmm_prior
 from gltrack.observe.blob_evidence import default_volume
@@ -153,6 +154,9 @@ class MultiviewOptions(Options):
     iou_tile : resolution (power of two, pixels per side) at which ``info["iou"]`` is counted;
         0 = the tracking ``tile``. 256 by default: at 64 px a limb is 2-3 pixels wide, so the
         IoU would measure the tile more than the fit; 256 px costs one render of one pose
+    mesh_lod : level of detail of the procedural mesh the engine scores with
+        (:func:`gltrack.body.mesh.make_body_mesh`: 0 = 1008 triangles, 1 = 1968, 2 = 7872);
+        the run's body record keeps its own
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -180,10 +184,12 @@ class MultiviewOptions(Options):
     init_keep: int = 3
     init_rounds: int = 1
     iou_tile: int = 256
+    mesh_lod: int = 1
 
     def problems(self):
         bad = super().problems() + [
             *at_least(self, 1, "init_headings", "init_keep", "init_rounds"),
+            *choice(self, "mesh_lod", MESH_LODS),
             *choice(self, "estimate", ESTIMATES), *choice(self, "weights", WEIGHTS),
             *choice(self, "foreground", FOREGROUNDS), *choice(self, "prior", PRIORS),
             *choice(self, "appearance_init", APPEARANCE_INITS),
@@ -308,7 +314,7 @@ class MultiviewTracker(Tracker):
 
     def __init__(self, dataset, body, ctx, options: MultiviewOptions | None = None, rng=None):
         self.opt = (options or self.options_class()).validate()
-        self.body = body
+        self.body = body.with_lod(self.opt.mesh_lod)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         # the background models are fitted lazily, on the first frame read: their own generator
         # (its first state goes into checkpoints), so that a resumed run fits them the same
@@ -317,7 +323,7 @@ class MultiviewTracker(Tracker):
         self.obs = MultiviewObservation(dataset, self.opt.foreground, obs_rng)
         self.fps = dataset.fps
         self.likelihood = SilhouetteLikelihood(
-            ctx, body, self.obs, tile=self.opt.tile, appearance=self.opt.appearance,
+            ctx, self.body, self.obs, tile=self.opt.tile, appearance=self.opt.appearance,
             blocking="layers" if self.opt.environment else "none")
         self.engine = self.likelihood.engine
         self.sampler, self.n = make_sampler(self.method, body.dofs, dataset.fps, self.opt)
