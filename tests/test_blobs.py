@@ -192,3 +192,30 @@ def test_log_gauss_and_logsumexp_match_scipy():
     for axis, keep in ((1, False), (0, True), (1, True)):
         np.testing.assert_allclose(logsumexp(a, axis=axis, keepdims=keep),
                                    lse_ref(a, axis=axis, keepdims=keep))
+
+
+def test_mixture_loglik_is_the_direct_sum(body):
+    """mixture_loglik against a direct twin (scipy's Gaussian densities, one mixture at a
+    time), on voxels far from the origin (the room's coordinates)."""
+    from scipy.special import logsumexp as sp_logsumexp
+    from scipy.stats import multivariate_normal
+
+    bm = BlobModel(body.mesh, body.skeleton)
+    rng = np.random.default_rng(4)
+    X = np.repeat(_pose(body)[None], 6, axis=0)
+    X[:, :3] += [3.0, 0.0, -2.0]
+    X += rng.normal(0.0, 0.1, X.shape) * body.dofs.sigma_at(30.0) * 10
+    B = bm.blobs(body.skinning(X))
+    pts = B.means[0, rng.integers(0, B.n_blobs, 400)] + rng.normal(0.0, 0.05, (400, 3))
+    vol = rng.uniform(0.5, 2.0, 400)
+    want = []
+    for n in range(len(X)):
+        lp = np.stack([multivariate_normal(B.means[n, k], B.covs[n, k]).logpdf(pts)
+                       + np.log(B.weights[n, k]) for k in range(B.n_blobs)], axis=1)
+        want.append(np.sum(vol / vol.sum() * sp_logsumexp(lp, axis=1)))
+    got = mixture_loglik(pts, B, point_weights=vol)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    assert np.ptp(got) > 1.0  # the poses differ, and so do their likelihoods
+    one = Blobs(B.means[2], B.covs[2], B.weights[2])
+    assert np.shape(mixture_loglik(pts, one, point_weights=vol)) == ()
+    assert mixture_loglik(pts, one, point_weights=vol) == pytest.approx(got[2], rel=1e-12)

@@ -57,6 +57,10 @@ ENV_CASES = {"table": ["--occluder", "table"], "distractor": ["--distractor", "b
 HPS_EVALS_PER_PARTICLE = 15
 #: the honest protocol's target for hps (full DOF, the bench budget): mean joint error, mm
 HONEST_HPS_MM = 40.0
+#: Bandouch's APF budget: particles, annealing layers (8000 evaluations per frame)
+PAPER_APF = (800, 10)
+#: issue 15's speed target for that APF on a 2-core software-GL machine, seconds per frame
+PAPER_APF_SECONDS = 5.0
 
 
 def method_configs(budget: int, n_partitions: int = 10) -> dict:
@@ -244,7 +248,7 @@ def _static_error(ds_path) -> float:
 def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = None,
                     frames: int | None = None, presets=("full", "38"), environment: bool = True,
                     seed: int = 0, workdir=None, keep: bool = False,
-                    protocols=tuple(PROTOCOLS)) -> dict:
+                    protocols=tuple(PROTOCOLS), paper_budget: bool = True) -> dict:
     """Mean 3D joint error of SIR / APF / PS / HPS at equal evaluation budget.
 
     Parameters
@@ -262,13 +266,17 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
         and preset from the true first pose with the true body, own mesh) and ``honest``
         (MakeHuman subject, estimated body, automatic start: ``hps`` full DOF, and a start
         turned 90 degrees)
+    paper_budget : with ``oracle`` and the walk clip, also time ``apf`` at Bandouch's budget
+        (:data:`PAPER_APF`) with the default engine mesh and with the coarse one
+        (``mesh_lod`` 0), against :data:`PAPER_APF_SECONDS`
 
     Returns
     -------
     dict, JSON-serialisable: ``machine``, ``renderer``, ``budget``, ``frames``, ``clips``
     (clip -> preset -> run -> figures, plus ``static_mm`` and ``honest``: {``hps``,
-    ``body_error``, ``wrong_start``}), ``honest_targets``, ``environment`` (case -> figures),
-    ``skipped`` (reasons), ``seconds``.
+    ``body_error``, ``wrong_start``}), ``honest_targets``, ``paper_budget``
+    (:func:`_bench_paper_budget`), ``environment`` (case -> figures), ``skipped`` (reasons),
+    ``seconds``.
     """
     from gltrack.gl.context import shared_context
 
@@ -313,12 +321,42 @@ def bench_multiview(quick: bool = False, clips=None, *, budget: int | None = Non
             entry["honest"] = _bench_honest(shared, bvh, src, work / clip, budget, ctx, seed)
         res["clips"][clip] = entry
     res["honest_targets"] = _honest_targets(res["clips"])
+    walk_ds = work / "walk_ds"
+    if paper_budget and "oracle" in protocols and (walk_ds / "meta.json").is_file():
+        res["paper_budget"] = _bench_paper_budget(walk_ds, work / "walk", ctx, seed)
     if environment and "oracle" in protocols and "walk" in CLIPS:
         res["environment"] = _bench_environment(shared, work, budget, n_frames, ctx, seed)
-        if own_dir and not keep:
-            shutil.rmtree(work, ignore_errors=True)
+    if own_dir and not keep:  # every protocol's datasets, not only after the environment cases
+        shutil.rmtree(work, ignore_errors=True)
     res["seconds"] = round(time.perf_counter() - t_start, 1)
     return res
+
+
+def _bench_paper_budget(ds_path, out_dir, ctx, seed) -> dict:
+    """``apf`` at :data:`PAPER_APF` (full DOF, the oracle's true start) on one clip with the
+    default ``mesh_lod`` and with ``mesh_lod`` 0 (1008 triangles): seconds per frame against
+    :data:`PAPER_APF_SECONDS`, and the accuracy each buys. ``met``: the default's."""
+    from gltrack.body.model import body_from_meta
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import AnnealedOptions
+
+    with Dataset.open(ds_path) as d:
+        body = body_from_meta(d.body, "full")
+    x0 = _start_pose(ds_path, body.dofs.names, body)
+    particles, layers = PAPER_APF
+    default_lod = AnnealedOptions().mesh_lod
+    runs = {}
+    for lod in dict.fromkeys((default_lod, 0)):
+        opts = {"particles": particles, "layers": layers, "mesh_lod": lod}
+        runs[f"mesh_lod_{lod}"] = _run(ds_path, "apf", opts, out_dir / f"paper_apf_lod{lod}",
+                                       "full", x0, ctx, seed)
+        log.info("apf %dx%d, mesh_lod %d: %.2f s/frame, %.1f mm", particles, layers, lod,
+                 runs[f"mesh_lod_{lod}"]["seconds_per_frame"],
+                 runs[f"mesh_lod_{lod}"]["mean_joint_error_mm"])
+    s = runs[f"mesh_lod_{default_lod}"]["seconds_per_frame"]
+    return {"method": "apf", "particles": particles, "layers": layers,
+            "default_mesh_lod": default_lod, "runs": runs,
+            "target_seconds_per_frame": PAPER_APF_SECONDS, "met": s <= PAPER_APF_SECONDS}
 
 
 def _honest_targets(clips: dict) -> dict:
@@ -437,6 +475,16 @@ def table(res: dict) -> str:
     t = res.get("honest_targets", {})
     if t.get("per_clip"):
         lines.append(f"honest targets all met: {t['all_met']}")
+    pb = res.get("paper_budget")
+    if pb:
+        lines.append(f"apf at the paper's budget ({pb['particles']} particles x {pb['layers']} "
+                     f"layers), walk, target <= {pb['target_seconds_per_frame']:g} s/frame: "
+                     + ("met" if pb["met"] else "missed"))
+        for name, r in pb["runs"].items():
+            tag = " (default)" if name == f"mesh_lod_{pb['default_mesh_lod']}" else ""
+            ok = "met" if r["seconds_per_frame"] <= pb["target_seconds_per_frame"] else "missed"
+            lines.append(f"  {name}{tag}: {r['seconds_per_frame']:.2f} s/frame ({ok}), "
+                         f"{r['mean_joint_error_mm']:.1f} mm")
     for case, r in res.get("environment", {}).items():
         lines.append(f"env {case:10s} static {r['static_mm']:.1f}  hps with layers "
                      f"{r['with_layers']['mean_joint_error_mm']:.1f}  without "

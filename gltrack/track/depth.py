@@ -113,7 +113,9 @@ class DepthOptions(Options):
         behind the centroid of the seen (front) surface, about half a torso's depth
     stages : how the per-frame climb batches its candidates. "chain" (default): the DOFs one
         after another (:func:`gltrack.sample.hillclimb.hill_climb`, the limbs' i-th DOFs
-        batched with ``batch_limbs``; hc+ep about 200-300 engine calls per frame). "parts": one
+        batched with ``batch_limbs``; the heading hypotheses climb as lanes of the same calls,
+        :func:`gltrack.sample.hillclimb.hill_climb_lanes`, and so do the evidence proposals of
+        a pass: hc+ep 120-160 engine calls per frame, 230-250 before the lanes). "parts": one
         engine call per level of each stage (the root, the rest of the torso, all four limbs;
         the heading hypotheses share the root stage's calls, the evidence proposals of a pass
         share one climb), see :func:`gltrack.sample.hillclimb.stage_climb`: hc+ep 13-17 calls
@@ -124,7 +126,10 @@ class DepthOptions(Options):
         goes into the candidates, not the calls, so it bought no speed there either
     mesh_lod : level of detail of the procedural mesh the engine scores with
         (:func:`gltrack.body.mesh.make_body_mesh`: 0 = 1008 triangles, 1 = 1968, 2 = 7872);
-        the run's body record keeps its own
+        the run's body record keeps its own. 1 by default: measured (hc+ep, true body and
+        start, 60 frames, three datasets per clip, llvmpipe) lod 0 runs 1.2-1.45x the frames/s
+        and its mean marker error is 3 mm lower on the walk, the same on the hops, but 7 mm
+        higher on the salsa in all three (0.078 against 0.071 m)
     """
 
     tile: int = 64
