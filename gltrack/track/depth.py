@@ -115,7 +115,7 @@ class DepthOptions(Options):
         after another (:func:`gltrack.sample.hillclimb.hill_climb`, the limbs' i-th DOFs
         batched with ``batch_limbs``; the heading hypotheses climb as lanes of the same calls,
         :func:`gltrack.sample.hillclimb.hill_climb_lanes`, and so do the evidence proposals of
-        a pass: hc+ep 120-160 engine calls per frame, 230-250 before the lanes). "parts": one
+        a pass: hc+ep 120-160 engine calls per frame, 170-250 before the lanes). "parts": one
         engine call per level of each stage (the root, the rest of the torso, all four limbs;
         the heading hypotheses share the root stage's calls, the evidence proposals of a pass
         share one climb), see :func:`gltrack.sample.hillclimb.stage_climb`: hc+ep 13-17 calls
