@@ -27,16 +27,12 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 from gltrack.body.mesh import PARTS
 
 log = logging.getLogger(__name__)
 
 _E_S, _E_S2 = 2.0 / 3.0, 0.5
-#: upper-triangle index pairs of a 3x3 matrix, and each full entry's index among them
-_IU = np.triu_indices(3)
-_SYM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
 @dataclass
@@ -119,86 +115,82 @@ class BlobModel:
         if np.any(vol <= 0):
             raise ValueError("mesh has a body part without area")
         self._part_w /= vol[:, None]
-        self._part_w_sparse = sparse.csr_matrix(self._part_w)  # one part per vertex
         self.weights = vol / vol.sum()
-        # vertices then anchors, skinned with the vertex's own joints and weights. Skinning is
-        # linear in the skinning matrices, so all of it is one matrix: flattened (N, B * 12)
-        # matrices @ (B * 12, 3 * Q) -> (N, Q, 3) points.
-        pts = np.concatenate([v, anchor]).astype(np.float64)
-        joints = np.concatenate([mesh.joints, mesh.joints]).astype(np.int64)
-        wts = np.concatenate([mesh.weights, mesh.weights]).astype(np.float64)
         self._n_bones = int(skeleton.n_joints)
-        if joints.max() >= self._n_bones:
-            raise ValueError(f"mesh uses joint {joints.max()}, the skeleton has {self._n_bones}")
-        Q = len(pts)
-        ph = np.concatenate([pts, np.ones((Q, 1))], axis=1)
-        A = np.zeros((self._n_bones, 3, 4, Q, 3))
-        q = np.arange(Q)
-        for k in range(joints.shape[1]):
-            for i in range(3):
-                # x_q[i] += w_qk * sum_c S[j_qk, i, c] * ph_q[c]
-                np.add.at(A, (joints[:, k], i, slice(None), q, i), wts[:, k, None] * ph)
-        # each point depends on at most 4 bones: 16 of the B * 12 rows (sparse is ~10x faster)
-        self._skin_t = sparse.csr_matrix(A.reshape(self._n_bones * 12, Q * 3).T)
+        if mesh.joints.max() >= self._n_bones:
+            raise ValueError(f"mesh uses joint {mesh.joints.max()}, the skeleton has "
+                             f"{self._n_bones}")
+        self._anchor = anchor
+        # Skinning is affine in the skinning matrices, so a part's moments are linear and
+        # quadratic forms of the matrices of the few bones its vertices hang on: with s_p the
+        # (3, 4 b) matrices of those b bones side by side and u the vertex's blend weights
+        # times its homogeneous rest position (4 b,), x = s_p u, and
+        #   E[x] = s_p E[u],   E[x x^T] = s_p E[u u^T] s_p^T.
+        # Precomputing E[u] and E[u u^T] per part makes a pose's blobs a few small products,
+        # ten times faster than skinning every vertex.
+        if interior:
+            # E[x x^T] over x = a + s d with E[s] = 2/3, E[s^2] = 1/2 is
+            # m m^T + (E[s^2] - E[s]^2) d d^T with m = a + E[s] d
+            m = np.concatenate([anchor + _E_S * (v - anchor), np.ones((len(v), 1))], axis=1)
+            d = np.concatenate([v - anchor, np.zeros((len(v), 1))], axis=1)
+        else:
+            m, d = np.concatenate([v, np.ones((len(v), 1))], axis=1), None
+        self._bones, self._mu, self._G = [], [], []
+        wts = mesh.weights.astype(np.float64)
+        for p in range(P):
+            rows = np.nonzero(self._part_w[p])[0]
+            bones = np.unique(mesh.joints[rows][wts[rows] > 0])
+            blend = np.zeros((len(rows), len(bones)))
+            for k in range(mesh.joints.shape[1]):
+                # (a zero weight may name any joint: clipped onto a used bone, it adds nothing)
+                col = np.minimum(np.searchsorted(bones, mesh.joints[rows, k]), len(bones) - 1)
+                blend[np.arange(len(rows)), col] += np.maximum(wts[rows, k], 0.0)
+            wv = self._part_w[p, rows]
+            u = (blend[:, :, None] * m[rows, None, :]).reshape(len(rows), -1)  # (Vp, 4 b)
+            G = (u * wv[:, None]).T @ u
+            if d is not None:
+                e = (blend[:, :, None] * d[rows, None, :]).reshape(len(rows), -1)
+                G += (_E_S2 - _E_S ** 2) * (e * wv[:, None]).T @ e
+            self._bones.append(bones)
+            self._mu.append(wv @ u)
+            self._G.append(G)
 
     @property
     def n_blobs(self) -> int:
         return len(self.parts)
 
-    def _skin_qin(self, S):
-        """(2V, 3, N) posed vertices then their anchors, point-major (one sparse product)."""
-        S = np.asarray(S, dtype=np.float64)
-        if S.ndim != 4 or S.shape[1:] != (self._n_bones, 3, 4):
-            raise ValueError(f"skinning must have shape (N, {self._n_bones}, 3, 4), got {S.shape}")
-        return np.asarray(self._skin_t @ S.reshape(len(S), -1).T).reshape(-1, 3, len(S))
-
-    def _skin(self, S):
-        """(N, 2V, 3) posed vertices then their anchors for skinning matrices (N, B, 3, 4)."""
-        return np.transpose(self._skin_qin(S), (2, 0, 1))
-
-    def blobs(self, skinning, chunk: int = 512) -> Blobs:
+    def blobs(self, skinning, chunk: int = 4096) -> Blobs:
         """Blobs of N posed candidates.
 
         Parameters
         ----------
         skinning : (N, B, 3, 4) float, ``Kinematics.skinning_matrices``
-        chunk : int, poses processed at once (bounds the (chunk, V, 9) temporaries)
+        chunk : int, poses processed at once (bounds the (chunk, 3, 3, 4 b) temporaries)
 
         Returns
         -------
         Blobs with means (N, P, 3), covs (N, P, 3, 3), weights (N, P) (the same for every pose).
         """
         S = np.asarray(skinning, dtype=np.float64)
-        n = S.shape[0] if S.ndim == 4 else 0
+        if S.ndim != 4 or S.shape[1:] != (self._n_bones, 3, 4):
+            raise ValueError(f"skinning must have shape (N, {self._n_bones}, 3, 4), got "
+                             f"{S.shape}")
+        n = S.shape[0]
         mean = np.empty((n, self.n_blobs, 3))
         cov = np.empty((n, self.n_blobs, 3, 3))
         for a in range(0, n, chunk):
             mean[a:a + chunk], cov[a:a + chunk] = self._moments(S[a:a + chunk])
-        if n == 0:
-            self._skin(S)  # raises for a malformed argument
         return Blobs(mean, cov, np.broadcast_to(self.weights, (n, self.n_blobs)).copy())
 
     def _moments(self, S):
-        # point-major layout (Q, 3, N): the part sums become single (sparse) matrix products
-        X = self._skin_qin(S)
-        V, n, P = self.mesh.n_vertices, X.shape[2], self.n_blobs
-        vert, anc = X[:V], X[V:]
-        if self.interior:
-            # E[x x^T] over x = a + s d with E[s] = 2/3, E[s^2] = 1/2 is
-            # m m^T + (E[s^2] - E[s]^2) d d^T with m = a + E[s] d
-            d = vert - anc
-            m = anc + _E_S * d
-        else:
-            d, m = None, vert
-        pairs = np.empty((V, 6, n))
-        for k, (i, j) in enumerate(zip(*_IU)):
-            np.multiply(m[:, i], m[:, j], out=pairs[:, k])
-            if d is not None:
-                pairs[:, k] += (_E_S2 - _E_S ** 2) * d[:, i] * d[:, j]
-        W = self._part_w_sparse
-        mean = np.transpose(np.asarray(W @ m.reshape(V, -1)).reshape(P, 3, n), (2, 0, 1))
-        second = np.asarray(W @ pairs.reshape(V, -1)).reshape(P, 6, n)
-        second = np.transpose(second, (2, 0, 1))[..., _SYM]
+        n = len(S)
+        mean = np.empty((n, self.n_blobs, 3))
+        second = np.empty((n, self.n_blobs, 3, 3))
+        for p, (bones, mu, G) in enumerate(zip(self._bones, self._mu, self._G)):
+            sp = np.transpose(S[:, bones], (0, 2, 1, 3)).reshape(n, 3, -1)  # (n, 3, 4 b)
+            mean[:, p] = sp @ mu
+            sG = (sp.reshape(-1, sp.shape[2]) @ G).reshape(sp.shape)
+            second[:, p] = np.einsum("nik,njk->nij", sG, sp)
         return mean, second - mean[..., :, None] * mean[..., None, :]
 
     def centroid(self, skinning) -> np.ndarray:
