@@ -39,6 +39,10 @@ LOST_KL = 25.0
 #: where the blob fit starts: the trackers' predicted poses (the system), or the true pose of
 #: the frame (an oracle: the paper's protocol comparing motion models only, Fig. 12)
 FIT_FROM = ("predictions", "groundtruth")
+#: at most this many voxel points rank candidate starts (:meth:`BlobEvidence.rank`). A person's
+#: hull at depth 7 gives about 2000; 512 kept the same best three of 144 cluster/heading
+#: candidates in 9 of 10 frames (the likelihoods correlate at 0.999) for a sixth of the time
+RANK_POINTS = 512
 #: timed stages, keys of :attr:`BlobEvidence.seconds`
 STAGES = ("voxels", "blob_fit", "evaluation")
 
@@ -148,11 +152,10 @@ class BlobEvidence:
             self._backgrounds = models
         return self._backgrounds
 
-    def _carve(self, frame):
+    def _carve(self, frame, images):
         if self.segmentation == "colour":
             from gltrack.observe.colour_carve import carve_colour
 
-            images = [self.ds.colour(frame, i) for i in range(len(self.cameras))]
             return carve_colour(self.cameras, images, self._background_models(), self.volume,
                                 base=self.base, max_depth=self.max_depth,
                                 tolerance=self.tolerance)
@@ -172,12 +175,14 @@ class BlobEvidence:
             return
         self.seconds = dict.fromkeys(STAGES, 0.0)
         with self._timed("voxels"):
-            self.voxels = self._carve(frame)
+            # read once: the colour test and the voxels' colours both need the frame's images
+            images = [self.ds.colour(frame, i) for i in range(len(self.cameras))] \
+                if self.use_colour or self.segmentation == "colour" else None
+            self.voxels = self._carve(frame, images)
             self._points = self.voxels.points(max_size=self.point_size) if len(self.voxels) \
                 else None
             self._colours = None
             if self.use_colour and self._points is not None:
-                images = [self.ds.colour(frame, i) for i in range(len(self.cameras))]
                 self._colours = bgr_to_yuv(point_colours(self._points[0], self.cameras, images))
         self.frame, self.observed, self.fit_loglik = frame, None, -np.inf
         if self._points is None:
@@ -210,6 +215,11 @@ class BlobEvidence:
         """Indices of the ``keep`` poses (N, D) whose unfitted blobs explain the voxels best
         (cheap pre-selection before fitting from many candidates)."""
         pts, vol = self.points()
+        if len(pts) > RANK_POINTS:
+            # an evenly spaced subset of the (octree-ordered) points: a preselection needs the
+            # order of gross differences (cluster, heading), not the exact likelihood
+            idx = np.unique(np.linspace(0, len(pts) - 1, RANK_POINTS).round().astype(np.int64))
+            pts, vol = pts[idx], vol[idx]
         with self._timed("blob_fit"):
             ll = mixture_loglik(pts, self.blobs(params), point_weights=vol)
         return np.argsort(-np.atleast_1d(ll))[: max(int(keep), 1)]
