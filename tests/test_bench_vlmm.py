@@ -15,6 +15,7 @@ def test_targets_and_tables():
           "condensation_5000": _summary([_row("condensation", 0.045, 0)]),
           "apf_1000x5": _summary([_row("apf-blobs", 0.07, 0)])}
     p2 = {"vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0)]),
+          "vlmm_1000_colour": _summary([_row("vlmm", 0.097, 0, fps=9.5)]),
           "condensation_5000": _summary([_row("condensation", 0.2, 0)])}
     assert abs(p1["vlmm_200"]["rms_joint_error_m"] - 0.085) < 1e-12
     res = {"machine": "m", "clip": "c.bvh", "train_takes": ["a", "b"], "fps": 30.0,
@@ -32,10 +33,11 @@ def test_targets_and_tables():
     assert t["p1_vlmm_le_condensation"] is False  # 85 mm against 45 mm
     assert t["p1_vlmm_le_1.2_apf"] is False  # 85 > 1.2 x 70
     assert t["p2_vlmm_rms_met"] is True and t["recovery_within_30"] is True
-    assert t["loop_fps"] == 11.0
+    assert t["loop_fps"] == 11.0 and t["loop_fps_colour"] == 9.5
     text = format_table(res)
     assert "protocol 1, motion models only" in text and "protocol 2, the whole system" in text
     assert "   85.0" in text and "after 3 frames" in text
+    assert "11.00 (colour segmentation: 9.50) frames/s" in text
     res["recovery"]["vlmm_1000"]["frames_to_recover"] = None
     assert _vlmm_targets(res, quick=False)["recovery_within_30"] is False
 
