@@ -212,3 +212,27 @@ def test_blob_evidence_follows_lost_particles_without_prototypes(setup):
     assert kl[0][0] < LOST_KL < kl[3][0] and kl[3][0] > 10 * kl[0][0], kl
     assert kl[3][0] > tv.LOST_DEFAULT["blobs"], kl
     assert kl[3][1] < 0.2 * kl[0][1], kl
+
+
+def test_search_fits_from_both_headings(setup):
+    """Initialisation and recovery fit the blobs from the best-ranked candidates and from as
+    many of the best turned round from the first: the kept fit (best voxel likelihood) is
+    then not bound to one heading. The fit from all of them is at least as likely as the fit
+    from the first heading's alone."""
+    root, body, _, _ = setup
+    yi = body.dofs.index("pelvis_ry")
+    with Dataset.open(root / "ds") as ds:
+        tr = tv.VlmmTracker(ds, body, None, tv.VlmmOptions(
+            model=str(root / "model.npz"), particles=20, max_depth=2, headings=8, fit_inits=2),
+            np.random.default_rng(0))
+        seen = []
+        fit = tr.evidence.fit
+        tr.evidence.fit = lambda poses: (seen.append(np.array(poses)), fit(poses))[1]
+        P, _, c = tr._search(3)
+        starts = seen[-1]
+        assert len(starts) == 4 and len(c) == len(P)
+        turn = np.abs(np.angle(np.exp(1j * (starts[:, yi] - starts[0, yi]))))
+        assert turn[0] == 0 and np.all(turn[2:] > np.pi / 2), turn
+        both = tr.evidence.fit_loglik
+        one = fit(starts[:2])
+    assert both >= one

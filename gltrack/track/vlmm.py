@@ -203,8 +203,17 @@ class VlmmTracker(Tracker):
         P, k = self.candidates(frame)
         if self.silhouette is None:
             # fitting from every candidate is too slow: fit from the few that explain the
-            # voxels best before any fitting
-            self.evidence.fit(P[self.evidence.rank(P, self.opt.fit_inits)])
+            # voxels best before any fitting, and as many of the best turned round from the
+            # first (more than 90 degrees). The fit with the best voxel likelihood is kept, so
+            # the evidence does not just follow one heading: on cmu_60_10 the first frame's
+            # start faced 148 degrees the wrong way with the chi-square segmentation and the
+            # track stayed turned round (184 mm against 126 with the masks); with the twins it
+            # is 2 degrees off, and 3 of 12 sampled frames are put right, none made worse.
+            n = self.opt.fit_inits
+            order = self.evidence.rank(P, len(P))
+            yaw = P[:, self.body.dofs.index("pelvis_ry")]
+            turned = np.abs(np.angle(np.exp(1j * (yaw[order] - yaw[order[0]])))) > np.pi / 2
+            self.evidence.fit(P[np.concatenate([order[:n], order[turned][:n]])])
         return P, k, self.costs(frame, P)
 
     def start_hypotheses(self, frame):
