@@ -233,6 +233,14 @@ def test_voxel_colours_match_the_object(carved):
     assert np.quantile(err, 0.95) < 6.0, np.quantile(err, 0.95)
 
 
+def test_carving_without_colours_keeps_the_same_voxels(scene, carved):
+    cams, tex, bgs = scene
+    imgs, masks, vox, stats = carved
+    bare = carve_colour(cams, imgs, bgs, BOUNDS, base=8, max_depth=3, colours=False)
+    assert bare.colour is None and len(bare) == len(vox) > 0
+    assert np.array_equal(bare.ijk, vox.ijk) and np.array_equal(bare.level, vox.level)
+
+
 def test_empty_scene_gives_no_voxels(scene):
     cams, tex, bgs = scene
     imgs, _ = _frame(cams, tex, np.random.default_rng(12), sphere=False)

@@ -152,9 +152,10 @@ class BlobEvidence:
         if self.segmentation == "colour":
             from gltrack.observe.colour_carve import carve_colour
 
+            # the blobs sample the colours of their own (split) points: no voxel colours
             return carve_colour(self.cameras, images, self._background_models(), self.volume,
                                 base=self.base, max_depth=self.max_depth,
-                                tolerance=self.tolerance)
+                                tolerance=self.tolerance, colours=False)
         masks = []
         for i, c in enumerate(self.cameras):
             m = self.ds.mask(frame, i)
