@@ -127,7 +127,7 @@ class BlobModel:
         # times its homogeneous rest position (4 b,), x = s_p u, and
         #   E[x] = s_p E[u],   E[x x^T] = s_p E[u u^T] s_p^T.
         # Precomputing E[u] and E[u u^T] per part makes a pose's blobs a few small products,
-        # ten times faster than skinning every vertex.
+        # five times faster than skinning every vertex (1000 poses: 5.8 against 29 ms).
         if interior:
             # E[x x^T] over x = a + s d with E[s] = 2/3, E[s^2] = 1/2 is
             # m m^T + (E[s^2] - E[s]^2) d d^T with m = a + E[s] d
