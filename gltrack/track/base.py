@@ -11,13 +11,19 @@ class NoPersonError(ValueError):
     """An automatic start found no person in the frame (the runner then tries later frames)."""
 
 
+def turned_round(headings, ref: float) -> np.ndarray:
+    """(N,) bool: which of the headings (N,) radians differ from ``ref`` by more than 90
+    degrees (either way round the circle)."""
+    return np.abs(np.angle(np.exp(1j * (np.asarray(headings, np.float64) - ref)))) > np.pi / 2
+
+
 def two_modes(X, cost, yaw: int) -> list[np.ndarray]:
     """The lowest-cost pose of ``X`` (N, D) and, when there is one, the lowest-cost pose whose
     heading (DOF ``yaw``) differs from it by more than 90 degrees: the turned-round twin."""
     X, cost = np.asarray(X, dtype=np.float64), np.asarray(cost, dtype=np.float64)
     order = np.argsort(cost)
     best = X[order[0]]
-    turned = np.abs(np.angle(np.exp(1j * (X[order, yaw] - best[yaw])))) > np.pi / 2
+    turned = turned_round(X[order, yaw], best[yaw])
     return [best] + ([X[order[np.argmax(turned)]]] if turned.any() else [])
 
 

@@ -41,7 +41,8 @@ from gltrack.observe.multiview import MultiviewObservation, SilhouetteLikelihood
 from gltrack.sample import SIRFilter, StateSpace, cost_weights, systematic_resample
 from gltrack.sample.weights import Weights, annealing_exponent
 
-from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state
+from .base import (FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state,
+                   turned_round)
 from .blobfilter import BlobEvidenceOptions
 from .options import at_least, choice, within
 
@@ -212,7 +213,7 @@ class VlmmTracker(Tracker):
             n = self.opt.fit_inits
             order = self.evidence.rank(P, len(P))
             yaw = P[:, self.body.dofs.index("pelvis_ry")]
-            turned = np.abs(np.angle(np.exp(1j * (yaw[order] - yaw[order[0]])))) > np.pi / 2
+            turned = turned_round(yaw[order], yaw[order[0]])
             self.evidence.fit(P[np.concatenate([order[:n], order[turned][:n]])])
         return P, k, self.costs(frame, P)
 
