@@ -238,7 +238,7 @@ def test_nearest_part_rule_does_not_swap_limbs(body, ep_problem):
               cost_best=c_hc, max_passes=1)
     calls = []
 
-    def spy(x):  # a real climb; records which foot the IK moved
+    def spy(x, part=None):  # a real climb; records which foot the IK moved
         moved = np.linalg.norm(pm.positions(x)[0][3:5] - parts[3:5], axis=1)
         calls.append(int(np.argmax(moved)))
         return hc(x)
@@ -391,7 +391,7 @@ def ep_problem(body):
 
     sig = dofs.sigma_at(30)
 
-    def hc(x):
+    def hc(x, part=None):
         r = hill_climb(cost, x, list(range(dofs.size)), 2 * sig, levels=3, grid=5,
                        lower=dofs.lower, upper=dofs.upper)
         return r.x, r.cost, r.evaluations
@@ -514,12 +514,12 @@ def test_speculative_batches_give_the_one_by_one_result(body, ep_problem):
             return cost(X)
         return fn
 
-    def hc_seq(x):
+    def hc_seq(x, part=None):
         r = hill_climb(counting("seq"), x, list(range(dofs.size)), 2 * sig, levels=3, grid=5,
                        lower=dofs.lower, upper=dofs.upper)
         return r.x, r.cost, r.evaluations
 
-    def many(X):
+    def many(X, parts=None):
         r = hill_climb_lanes(counting("lanes"), X, list(range(dofs.size)), 2 * sig, levels=3,
                              grid=5, lower=dofs.lower, upper=dofs.upper)
         return r.X, r.cost, r.evaluations, r.calls

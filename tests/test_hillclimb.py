@@ -39,7 +39,8 @@ def test_separable_quadratic_exact_to_grid_resolution():
     spacing = 2 * steps * shrink ** (levels - 1) / (grid - 1)
     assert np.all(np.abs(res.x - center) <= spacing / 2 + 1e-12)
     assert res.cost == pytest.approx(quadratic(center, scale)(res.x[None])[0])
-    assert res.evaluations == levels * grid * d
+    # the grid's centre is the current pose: scored once, for the very first step only
+    assert res.evaluations == levels * (grid - 1) * d + 1
     assert res.calls == levels * d
 
 
@@ -55,7 +56,7 @@ def test_counts_every_candidate_and_improves():
 
     x0 = np.zeros(3)
     res = hill_climb(cost, x0, [0, 1, 2], 0.5, levels=3, grid=7, passes=2)
-    assert res.evaluations == sum(calls) == 2 * 3 * 7 * 3
+    assert res.evaluations == sum(calls) == 2 * 3 * 6 * 3 + 1
     assert res.calls == len(calls)
     assert res.cost < cost(x0[None])[0]
     assert res.cost == pytest.approx(cost(res.x[None])[0])
@@ -72,7 +73,8 @@ def test_batch_independent_matches_sequential_on_separable_cost():
     assert bat.x == pytest.approx(seq.x, abs=1e-12)
     assert seq.calls == 3 * d
     assert bat.calls == 3 * 4 + 1  # one batch per level per group, plus the final scoring
-    assert bat.evaluations == seq.evaluations + 1
+    # after a combined move a group's centre is scored again (once, not once per dim)
+    assert seq.evaluations <= bat.evaluations <= seq.evaluations + 2 * 3 + 1
     assert bat.cost == pytest.approx(seq.cost)
 
 
@@ -232,8 +234,8 @@ def test_hill_climb_lanes_climb_each_start_as_alone_in_the_calls_of_one():
         assert res.cost[i] == a.cost
     assert res.evaluations == sum(a.evaluations for a in alone) == sum(sizes)
     assert res.calls == alone[0].calls == len(sizes)
-    # every call but the last (the combined moves' check) holds the grids of all K lanes
-    assert sizes[0] == k * 5 and all(s % k == 0 for s in sizes[:-1])
+    # the first call holds every lane's grid and its not yet scored centre
+    assert sizes[0] == k * 5
     # the lanes really differ: the starts matter
     assert np.ptp(res.cost) > 0
 
@@ -243,3 +245,81 @@ def test_hill_climb_lanes_validates():
         hill_climb_lanes(lambda X: X[:, 0], np.zeros(3), [0], 0.1)
     with pytest.raises(ValueError, match="one pose"):
         hill_climb(lambda X: X[:, 0], np.zeros((2, 3)), [0], 0.1)
+
+
+def full_grid_climb(cost, x0, order, steps, levels, grid, shrink, lo, hi):
+    """Independent reference: the plain coordinate search that scores every grid point, the
+    centre included, one dim after the other (ties go to the value nearest the current one, a
+    move must beat the current cost)."""
+    x = np.clip(np.array(x0, dtype=float), lo, hi)
+    off = np.linspace(-1, 1, grid)
+    for i in order:
+        for level in range(levels):
+            vals = np.clip(x[i] + steps[i] * shrink ** level * off, lo[i], hi[i])
+            cand = np.repeat(x[None], grid, axis=0)
+            cand[:, i] = vals
+            c = cost(cand)
+            cur = cost(x[None])[0]
+            best = min(range(grid), key=lambda j: (c[j], abs(off[j])))
+            if c[best] < cur:
+                x = cand[best]
+    return x
+
+
+@pytest.mark.parametrize("grid", [5, 4])
+def test_skipping_known_centres_walks_the_full_grid_search(grid):
+    """Not re-scoring the current pose changes nothing but the count: the same poses as the
+    search that scores every grid point (coupled cost, limits, odd and even grids)."""
+    rng = np.random.default_rng(7)
+    d = 5
+    center = rng.uniform(-0.5, 0.5, d)
+
+    def coupled(X):
+        e = X - center
+        return np.sum(e ** 2, axis=1) + 0.7 * e[:, 0] * e[:, 3] + 0.2 * np.abs(e[:, 1] * e[:, 4])
+
+    lo, hi = np.full(d, -0.6), np.full(d, 0.6)
+    for trial in range(5):
+        x0 = rng.uniform(-1, 1, d)
+        steps = rng.uniform(0.1, 0.5, d)
+        res = hill_climb(coupled, x0, range(d), steps, levels=3, grid=grid, lower=lo, upper=hi)
+        ref = full_grid_climb(coupled, x0, range(d), steps, 3, grid, 0.4, lo, hi)
+        np.testing.assert_array_equal(res.x, ref)
+        per_level = grid - 1 if grid % 2 else grid
+        assert res.evaluations == 3 * d * per_level + (grid % 2)
+
+
+def test_hill_climb_lanes_active_dims_only():
+    """A lane searches only its active dims (the others keep their start values), exactly as
+    a climb over those dims alone; an all-true mask is no mask; no call is made for a group no
+    lane searches."""
+    rng = np.random.default_rng(4)
+    d = 7
+    center = rng.uniform(-0.4, 0.4, d)
+
+    def coupled(X):
+        e = X - center
+        return np.sum(e ** 2, axis=1) + 0.5 * e[:, 0] * e[:, 2] + 0.4 * e[:, 3] * e[:, 5]
+
+    order = [0, 1, (2, 3), (4, 5), 6]
+    X0 = rng.uniform(-0.5, 0.5, (3, d))
+    active = np.ones((3, d), dtype=bool)
+    active[1, [2, 4, 5]] = False  # lane 1: a group partly, another wholly off
+    active[2, :] = False
+    active[2, [0, 3]] = True
+    kw = dict(levels=3, grid=5, batch_independent=True)
+    res = hill_climb_lanes(coupled, X0, order, 0.3, active=active, **kw)
+    for lane in range(3):
+        keep = [tuple(j for j in np.atleast_1d(g) if active[lane, j]) for g in order]
+        keep = [g[0] if len(g) == 1 else g for g in keep if g]
+        alone = hill_climb(coupled, X0[lane], keep, 0.3, **kw)
+        np.testing.assert_array_equal(res.X[lane], alone.x)
+        assert res.cost[lane] == pytest.approx(alone.cost)
+        off = ~active[lane]
+        np.testing.assert_array_equal(res.X[lane, off], X0[lane, off])
+    full = hill_climb_lanes(coupled, X0, order, 0.3, active=np.ones((3, d), bool), **kw)
+    free = hill_climb_lanes(coupled, X0, order, 0.3, **kw)
+    np.testing.assert_array_equal(full.X, free.X)
+    assert not np.array_equal(full.X, res.X)
+    only = hill_climb_lanes(coupled, X0[:1], order, 0.3, active=np.eye(d, dtype=bool)[:1], **kw)
+    assert only.calls == 3  # dim 0's three levels; every other group is skipped

@@ -105,6 +105,16 @@ class Kinematics:
                               for ch in letters] for j in joints])  # (J, L) into rotational params
             self._groups.append((np.array(joints), "".join(letters), self._rot_idx[cols]))
         self.rest = skeleton.rest_positions()
+        # Joints by depth in the tree: FK composes all joints of one depth at once (a handful of
+        # numpy calls per depth instead of per joint; a hill climb calls FK ~150 times a frame
+        # on ~15 poses, where the per-call overhead is the cost)
+        depth = np.zeros(B, dtype=int)
+        for j in range(1, B):
+            depth[j] = depth[skeleton.parents[j]] + 1
+        self._depths = []
+        for k in range(1, int(depth.max(initial=0)) + 1):
+            js = np.nonzero(depth == k)[0]
+            self._depths.append((js, skeleton.parents[js], skeleton.offsets[js][:, :, None]))
 
     def angles(self, params: np.ndarray) -> np.ndarray:
         """(N, B, 3) Euler angles about x, y, z for every joint (zeros for locked DOFs)."""
@@ -148,14 +158,12 @@ class Kinematics:
         Tw = np.empty((N, B, 3))
         Rw[:, 0] = local[:, 0]
         Tw[:, 0] = p[:, :3]
-        off = self.skeleton.offsets
-        for j in range(1, B):
-            pj = self.skeleton.parents[j]
-            Rp = Rw[:, pj]
-            np.matmul(Rp, local[:, j], out=Rw[:, j])
-            o = off[j]
+        for js, ps, o in self._depths:
+            Rp = Rw[:, ps]  # (N, J, 3, 3) the parents' world rotations
+            Rw[:, js] = Rp @ local[:, js]
             # R @ offset as three scaled columns: cheaper than a batched matrix-vector product.
-            Tw[:, j] = Tw[:, pj] + Rp[..., 0] * o[0] + Rp[..., 1] * o[1] + Rp[..., 2] * o[2]
+            Tw[:, js] = Tw[:, ps] + Rp[..., 0] * o[:, 0] + Rp[..., 1] * o[:, 1] + \
+                Rp[..., 2] * o[:, 2]
         return Pose(Rw, Tw)
 
     def skinning_matrices(self, params=None, *, pose: Pose | None = None,

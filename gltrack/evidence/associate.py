@@ -93,7 +93,9 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
     classes : dict part name -> class str (e.g. ``PART_CLASSES``); parts without a class are
         never matched
     cost_fn : callable ``X (N, D) -> (N,)``, lower is better
-    hill_climb_fn : callable ``x (D,) -> (x (D,), cost float, evaluations int)``
+    hill_climb_fn : callable ``(x (D,), part) -> (x (D,), cost float, evaluations int)``,
+        refines a proposal for ``part`` (a name of ``part_fns``; None when ``control`` refines
+        ``x_best`` itself), e.g. over that part's kinematic chain only
     sigma : (D,) float, prior standard deviation of the pose change for the IK (e.g. a multiple
         of ``DofSet.sigma_at(fps)``: evidence matters most after fast motion)
     chains : dict part name -> (d,) int DOFs the IK may move (e.g. :func:`.ik.part_chains`);
@@ -121,8 +123,9 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         climbing cannot undo (walk clip: one such move took the error from 0.08 to 0.22 m).
         A part the tracker has really lost is still matched when its sibling is tracked, since
         the sibling's own detection is then explained and pruned.
-    refine_many : callable ``X (K, D) -> (X (K, D), costs (K,), evaluations, calls)``,
-        optional: refines all proposals of a pass together (one batch of engine calls for all,
+    refine_many : callable ``(X (K, D), parts) -> (X (K, D), costs (K,), evaluations,
+        calls)``, ``parts`` the K proposals' part names, optional: refines all proposals of a
+        pass together (one batch of engine calls for all,
         e.g. :func:`gltrack.sample.hillclimb.stage_climb`) instead of ``hill_climb_fn`` one by
         one. Every proposal of a pass then starts from the same best pose, so a pass accepts
         only the best of them (the others were proposed from a pose that is no longer the
@@ -199,7 +202,7 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         log.debug("EP pass: %d open detections, %d correspondences", int(open_.sum()), len(cands))
         if control and cands:
             control = False
-            x_c, c_c, e = hill_climb_fn(x_best)
+            x_c, c_c, e = hill_climb_fn(x_best, None)
             evals += int(e)
             if float(c_c) < cost_best:
                 x_best, cost_best = np.asarray(x_c, dtype=np.float64).ravel(), float(c_c)
@@ -210,7 +213,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                 if not pending:
                     break
                 iks = [propose(name, j) for name, j in pending]
-                X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]))
+                X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]),
+                                                 [name for name, _ in pending])
                 evals += int(e)
                 won = next((i for i, c in enumerate(c_new) if float(c) < cost_best - margin),
                            None)
@@ -223,7 +227,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             cands = []
         if refine_many is not None and cands:
             iks = [propose(name, j) for name, j in cands]
-            X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]))
+            X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]),
+                                             [name for name, _ in cands])
             evals += int(e)
             c_new = np.asarray(c_new, dtype=np.float64)
             b = int(np.argmin(c_new))  # the first of equal costs: the detector's order
@@ -236,7 +241,7 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             if used[j]:
                 continue
             ik = propose(name, j)
-            x_new, c_new, e = hill_climb_fn(ik.x)
+            x_new, c_new, e = hill_climb_fn(ik.x, name)
             evals += int(e)
             if float(c_new) < cost_best - margin:
                 accept(name, j, ik, x_new, c_new)

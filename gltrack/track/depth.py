@@ -243,11 +243,11 @@ class HillClimbDepthTracker(Tracker):
         depth = float(cost) - float(self.prior(x, x_pred)[0])
         return max(depth, 0.0) / max(self.likelihood.area, 1e-9)
 
-    def _climb(self, cost, x, order, steps, levels):
+    def _climb(self, cost, x, order, steps, levels, cost0=None):
         d = self.body.dofs
         return hill_climb(cost, x, order, steps, levels=levels, grid=self.opt.grid,
                           shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
-                          lower=d.lower, upper=d.upper, passes=self.opt.passes)
+                          lower=d.lower, upper=d.upper, passes=self.opt.passes, cost0=cost0)
 
     def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None,
                stages=None):
@@ -270,15 +270,17 @@ class HillClimbDepthTracker(Tracker):
             return self._refine_stages(cost, x_start, steps, levels,
                                        self.opt.refine_passes if extra is None else extra)
         evals = calls = 0
+        c0 = None
         if self.opt.heading_hypotheses > 1:
-            x_start, evals, calls = self._best_heading(cost, x_start, steps, levels)
-        res = self._climb(cost, x_start, self.order, steps, levels)
+            x_start, c0, evals, calls = self._best_heading(cost, x_start, steps, levels)
+        res = self._climb(cost, x_start, self.order, steps, levels, cost0=c0)
         evals, calls = evals + res.evaluations, calls + res.calls
         for _ in range(self.opt.refine_passes if extra is None else extra):
             for order, h in ((self.limb_order, 0.5), (self.torso_dofs, 0.25)):
                 if not order:
                     continue
-                r = self._climb(cost, res.x, order, h * steps, max(1, levels - 1))
+                r = self._climb(cost, res.x, order, h * steps, max(1, levels - 1),
+                                cost0=res.cost)
                 evals, calls = evals + r.evaluations, calls + r.calls
                 if r.cost <= res.cost:
                     res = r
@@ -352,7 +354,7 @@ class HillClimbDepthTracker(Tracker):
 
         Returns
         -------
-        x : (D,) float64, evaluations : int, calls : int
+        x : (D,) float64, cost : float (``cost`` of ``x``), evaluations : int, calls : int
         """
         d = self.body.dofs
         root = [i for i in self.order if isinstance(i, int) and (i < 3 or i in self._root_rot)]
@@ -360,7 +362,8 @@ class HillClimbDepthTracker(Tracker):
                              grid=self.opt.grid, shrink=self.opt.shrink,
                              batch_independent=self.opt.batch_limbs, lower=d.lower,
                              upper=d.upper, passes=self.opt.passes)
-        return r.X[self.pick_heading(r.cost)], r.evaluations, r.calls
+        k = self.pick_heading(r.cost)
+        return r.X[k], float(r.cost[k]), r.evaluations, r.calls
 
     def search_steps(self) -> np.ndarray:
         """(D,) half-widths of the coarsest hill-climbing grid: ``search_sigmas`` inter-frame
