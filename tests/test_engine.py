@@ -224,6 +224,35 @@ def test_chunking_matches_single_batch(ctx, body, rng):
     assert small.evaluations == 37
 
 
+def test_partly_filled_grid_ignores_stale_tiles(ctx, body, rng):
+    """17 candidates take an 8x4 grid of which only 3 rows are cleared, scored and reduced: a
+    full batch of other poses on the same target before must not leak into their scores (both
+    reductions, against the CPU twin)."""
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    obs, _ = ref_render(mesh, kin.skinning_matrices(random_poses(body, rng, 1)), cam)
+    full = kin.skinning_matrices(random_poses(body, rng, 32))
+    S = kin.skinning_matrices(random_poses(body, rng, 17))
+    assert grid_for(32, 64) == grid_for(17, 64) == (8, 4)
+    params = DepthCostParams()
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, depth_params=params) as eng:
+        eng.set_depth(0, obs[0])
+        assert eng._used_height(17, 8) == 3 * TILE and eng._used_height(32, 8) == 4 * TILE
+        got = {}
+        for red in ("mipmap", "compute"):
+            eng.reduction, eng._auto_pending = red, False
+            eng.score(full, ["depth"])
+            got[red] = eng.score(S, ["depth"])[:, 0, 0]
+    rz, _ = ref_render(mesh, S, cam)
+    want = np.array([ref.depth_cost(rz[i], obs[0], scale=params.scale,
+                                    c_model_only=params.c_model_only, c_obs_only=params.c_obs_only,
+                                    smooth=params.smooth, penalty=params.penalty)
+                     for i in range(len(S))])
+    assert_close(got["mipmap"], want, "partly filled grid/mipmap")
+    assert_close(got["compute"], want, "partly filled grid/compute")
+    assert np.ptp(want) > 10
+
+
 def test_custom_cost_shader(ctx, body, rng, tmp_path):
     skel, dofs, kin, mesh = body
     cam = cams()[0]

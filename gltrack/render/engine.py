@@ -557,12 +557,19 @@ class ScoringEngine:
             res[:, c] = self._reduce(t, v, n, cols, rows, channels, self.reduction)
         return res
 
+    def _used_height(self, n, cols):
+        """Pixel rows of a target that a batch of ``n`` tiles in ``cols`` columns uses: the grid
+        is a power of two, so up to half its tiles can be empty (17 candidates take an 8x4
+        grid), and clearing, scoring and reducing them cost llvmpipe about half a candidate
+        each."""
+        return -(-n // cols) * self.tile
+
     def _render(self, t, v, n, cols, rows, with_tri=True):
         ctx = self.ctx
         proj = np.asarray(v.cam_tile.gl_projection(self.near, self.far), dtype=np.float32)
         prog = self._prog_model[with_tri]
         fbo = t["fbo"] if with_tri else t["fbo_z"]
-        self._clear_targets(t, with_tri)
+        self._clear_targets(t, with_tri, self._used_height(n, cols))
         fbo.use()
         fbo.viewport = (0, 0, t["W"], t["H"])
         ctx.enable(moderngl.DEPTH_TEST)
@@ -587,10 +594,13 @@ class ScoringEngine:
         ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
 
     @staticmethod
-    def _clear_targets(t, with_tri=True):
+    def _clear_targets(t, with_tri=True, height=None):
         # Zero means "no model" in both attachments: the triangle texture stores id + 1 (moderngl
         # clears integer attachments with the bit pattern of a float, so only 0 is portable).
-        (t["fbo"] if with_tri else t["fbo_z"]).clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        # Only the rows of tiles in use (``height`` pixels) are cleared; the others are never read.
+        (t["fbo"] if with_tri else t["fbo_z"]).clear(
+            0.0, 0.0, 0.0, 0.0, depth=1.0,
+            viewport=(0, 0, t["W"], t["H"] if height is None else height))
 
     @staticmethod
     def _needs_tri(channels):
@@ -616,7 +626,7 @@ class ScoringEngine:
             self._bind_cost_inputs(prog, t, v, channels)
             prog["grid"].value = (cols, rows)
             t["sums"].bind_to_storage_buffer(0)
-            prog.run(cols, rows, 1)
+            prog.run(cols, self._used_height(n, cols) // self.tile, 1)  # the tiles in use
             sums = np.frombuffer(t["sums"].read(size=n * 16), dtype=np.float32).reshape(n, 4)
             return sums.astype(np.float64)
         prog = self.programs.get(vertex="fullscreen.vert", fragment="cost.frag", defines=defines,
@@ -624,7 +634,9 @@ class ScoringEngine:
         self._bind_cost_inputs(prog, t, v, channels)
         vao = self._fullscreen_vao(prog)
         t["cost_fbo"].use()
-        t["cost_fbo"].viewport = (0, 0, t["W"], t["H"])
+        # the rows of tiles in use; the mipmaps average each tile on its own, so the stale
+        # values of the others never reach them
+        t["cost_fbo"].viewport = (0, 0, t["W"], self._used_height(n, cols))
         vao.render(moderngl.TRIANGLES, vertices=3)
         t["cost"].build_mipmaps(0, t["levels"])
         raw = np.frombuffer(t["cost"].read(level=t["levels"]), dtype=np.float32).reshape(rows, cols, 4)
