@@ -221,6 +221,27 @@ def test_decision_keeps_the_hypothesis_that_explains_the_frames():
     assert [e.score for e, _ in runs[1]] == [5.5, 3.0, 4.0]
 
 
+def test_a_restart_keeps_the_going_track_on_a_tie():
+    """A re-start's lost tracker (the incumbent) is kept when its mean is within the tie margin
+    of the best (a body and its turned-round twin tie; the track's continuity decides), but not
+    when another hypothesis is clearly better; without an incumbent the lowest mean wins."""
+    from gltrack.track.base import FrameEstimate
+    from gltrack.track.runner import TIE, _decide
+
+    class Scripted:  # constant scripted scores; no GL involved
+        def __init__(self, score):
+            self.score = score
+
+        def step(self, f):
+            return FrameEstimate(np.zeros(3), self.score, 1)
+
+    tied = 1.0 + 0.5 * TIE
+    assert _decide([Scripted(tied), Scripted(1.0)], range(3), [])[0] == 1
+    assert _decide([Scripted(tied), Scripted(1.0)], range(3), [], incumbent=0)[0] == 0
+    assert _decide([Scripted(1.0 + 2 * TIE), Scripted(1.0)], range(3), [], incumbent=0)[0] == 1
+    assert _decide([Scripted(1.0), Scripted(tied)], range(3), [], incumbent=1)[0] == 1
+
+
 def test_a_tie_between_twins_goes_to_the_one_walking_forwards():
     """Two hypotheses whose mean scores differ by less than the tie margin: the one whose
     travel points the way it faces is kept even with the (slightly) higher score; a clear
