@@ -83,10 +83,11 @@ class EvidenceOptions(DepthOptions):
         part (the root, the spine and the part's own limb or neck), not every DOF: the IK moved
         that chain alone and the rest was climbed a moment ago. Off by default: measured (hc+ep,
         true body and start, 60 frames, noise seeds 0 and 1, llvmpipe) it cuts the frame's
-        candidates by 25-40 % (hop 1710 -> 1080, walk 1410 -> 1050) and leaves walk and salsa
-        exactly as they were, but on the hop clip no proposal won any more while the body was
-        turned wrong (mean marker error 0.096 -> 0.225 m and 0.061 -> 0.094 m): there a
-        proposal's climb of the whole body is what recovers the other limbs too
+        candidates by 10-38 % (hop 1660-1760 -> 1070-1090, walk 1380-1450 -> 1030-1060, salsa
+        950-970 -> 860) and leaves walk and salsa exactly as they were, but on the hop clip no
+        proposal won any more while the body was turned wrong (mean marker error 0.096 -> 0.225
+        m and 0.061 -> 0.094 m): there a proposal's climb of the whole body is what recovers
+        the other limbs too
     """
 
     parts_model: str = ""
