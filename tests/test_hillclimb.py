@@ -287,6 +287,11 @@ def test_skipping_known_centres_walks_the_full_grid_search(grid):
         np.testing.assert_array_equal(res.x, ref)
         per_level = grid - 1 if grid % 2 else grid
         assert res.evaluations == 3 * d * per_level + (grid % 2)
+        # rescore_centre: the same poses, every grid point scored in every call
+        full = hill_climb(coupled, x0, range(d), steps, levels=3, grid=grid, lower=lo, upper=hi,
+                          rescore_centre=True)
+        np.testing.assert_array_equal(full.x, ref)
+        assert full.evaluations == 3 * d * grid
 
 
 def test_hill_climb_lanes_active_dims_only():

@@ -80,7 +80,8 @@ def _groups(dims_order, batch_independent: bool, d: int) -> list[tuple[int, ...]
 
 def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5,
                shrink: float = 0.4, batch_independent: bool = False, lower=None, upper=None,
-               passes: int = 1, cost0: float | None = None) -> HillClimbResult:
+               passes: int = 1, cost0: float | None = None,
+               rescore_centre: bool = False) -> HillClimbResult:
     """Coarse-to-fine coordinate search; lower cost is better.
 
     Parameters
@@ -100,6 +101,7 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
     lower, upper : (D,) float, optional, limits; candidates are clamped into them
     passes : int >= 1, sweeps over ``dims_order``
     cost0 : float, optional, ``cost_fn(x0)`` when known
+    rescore_centre : bool, see :func:`hill_climb_lanes`
 
     Returns
     -------
@@ -114,13 +116,15 @@ def hill_climb(cost_fn, x0, dims_order, steps, *, levels: int = 3, grid: int = 5
     r = hill_climb_lanes(cost_fn, x[None], dims_order, steps, levels=levels, grid=grid,
                          shrink=shrink, batch_independent=batch_independent, lower=lower,
                          upper=upper, passes=passes,
-                         cost0=None if cost0 is None else [float(cost0)])
+                         cost0=None if cost0 is None else [float(cost0)],
+                         rescore_centre=rescore_centre)
     return HillClimbResult(r.X[0], float(r.cost[0]), r.evaluations, r.calls)
 
 
 def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: int = 5,
                      shrink: float = 0.4, batch_independent: bool = False, lower=None,
-                     upper=None, passes: int = 1, active=None, cost0=None) -> "StageClimbResult":
+                     upper=None, passes: int = 1, active=None, cost0=None,
+                     rescore_centre: bool = False) -> "StageClimbResult":
     """:func:`hill_climb` of K start poses (lanes) at once: one ``cost_fn`` call per step.
 
     Every lane walks exactly the search :func:`hill_climb` would walk from its start (the lanes
@@ -144,6 +148,10 @@ def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: i
         others keep their start values in that lane (e.g. an evidence proposal climbs only the
         kinematic chain its inverse kinematics moved)
     cost0 : (K,) float, optional, ``cost_fn(X0)`` when known (saves scoring the first centre)
+    rescore_centre : bool, score every grid point, the centre included, in every call (the
+        search before the centres were skipped; a group's cost is then never carried over).
+        Kept for the depth tracker's automatic start, which the body estimate starts from (see
+        ``HillClimbDepthTracker.start_hypotheses``)
 
     Returns
     -------
@@ -168,6 +176,7 @@ def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: i
     offsets = np.linspace(-1.0, 1.0, int(grid))
     centre = np.flatnonzero(offsets == 0.0)  # (1,) with an odd grid, else empty
     moves = np.flatnonzero(offsets != 0.0)  # the other columns (all, with an even grid)
+    cols = np.arange(offsets.size) if rescore_centre else moves
     groups = _groups(dims_order, batch_independent, d)
     call = _CountedCost(cost_fn)
     # cost of each lane's current pose, NaN = not known
@@ -189,14 +198,14 @@ def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: i
                     dims = np.flatnonzero(sub[lane])
                     if dims.size == 0:
                         continue
-                    if centre.size and np.isnan(cost[lane]):
+                    if centre.size and np.isnan(cost[lane]) and not rescore_centre:
                         rows.append(X[lane][None])  # the centre, once for all dims
                         where.append((lane, -1, -1))
                     for j in dims:
-                        cand = np.repeat(X[lane][None], moves.size, axis=0)
-                        cand[:, gi[j]] = vals[lane, j, moves]
+                        cand = np.repeat(X[lane][None], cols.size, axis=0)
+                        cand[:, gi[j]] = vals[lane, j, cols]
                         rows.append(cand)
-                        where.extend((lane, j, c) for c in moves)
+                        where.extend((lane, j, c) for c in cols)
                 scored = call(np.concatenate(rows))
                 c = np.full((k, gi.size, offsets.size), np.inf)
                 for (lane, j, col), v in zip(where, scored):
@@ -204,7 +213,7 @@ def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: i
                         cost[lane] = v
                     else:
                         c[lane, j, col] = v
-                if centre.size:
+                if centre.size and not rescore_centre:
                     c[:, :, centre[0]] = np.where(sub, cost[:, None], np.inf)
                 # among equal costs take the candidate nearest the current value
                 tie = np.where(c == c.min(axis=2, keepdims=True), np.abs(offsets), np.inf)
@@ -219,6 +228,8 @@ def hill_climb_lanes(cost_fn, X0, dims_order, steps, *, levels: int = 3, grid: i
                 one = n_moved == 1
                 cost[one] = np.where(move, cb, np.inf)[one].min(axis=1)
                 cost[n_moved > 1] = np.nan  # the combined move was never scored as a whole
+                if rescore_centre and gi.size > 1:
+                    cost[sub.any(axis=1)] = np.nan
     todo = np.flatnonzero(np.isnan(cost))
     if todo.size:
         cost[todo] = call(X[todo])

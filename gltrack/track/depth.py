@@ -243,11 +243,16 @@ class HillClimbDepthTracker(Tracker):
         depth = float(cost) - float(self.prior(x, x_pred)[0])
         return max(depth, 0.0) / max(self.likelihood.area, 1e-9)
 
+    #: score every grid point of a climb, the centre included (see ``start_hypotheses``)
+    _rescore_centre = False
+
     def _climb(self, cost, x, order, steps, levels, cost0=None):
         d = self.body.dofs
         return hill_climb(cost, x, order, steps, levels=levels, grid=self.opt.grid,
                           shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
-                          lower=d.lower, upper=d.upper, passes=self.opt.passes, cost0=cost0)
+                          lower=d.lower, upper=d.upper, passes=self.opt.passes,
+                          cost0=None if self._rescore_centre else cost0,
+                          rescore_centre=self._rescore_centre)
 
     def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None,
                stages=None):
@@ -361,7 +366,8 @@ class HillClimbDepthTracker(Tracker):
         r = hill_climb_lanes(cost, self.heading_starts(x, steps), root, steps, levels=levels,
                              grid=self.opt.grid, shrink=self.opt.shrink,
                              batch_independent=self.opt.batch_limbs, lower=d.lower,
-                             upper=d.upper, passes=self.opt.passes)
+                             upper=d.upper, passes=self.opt.passes,
+                             rescore_centre=self._rescore_centre)
         k = self.pick_heading(r.cost)
         return r.X[k], float(r.cost[k]), r.evaluations, r.calls
 
@@ -492,6 +498,21 @@ class HillClimbDepthTracker(Tracker):
         twins = seeds.copy()
         twins[:, d.index("pelvis_ry")] += np.pi
         seeds = np.concatenate([seeds, d.validate(twins)])
+        # The full grid, the centres re-scored, as before the per-frame climb skipped them: the
+        # start is one frame, so its candidates do not matter, and the body estimate that
+        # starts from it was measured worse with the centres skipped (four simulated depth
+        # subjects, 1.62-1.92 m: 6-47 mm off in height, mean 23, against 5-27, mean 13)
+        self._rescore_centre = True
+        try:
+            X, costs = self._climb_seeds(seeds)
+        finally:
+            self._rescore_centre = False
+        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
+                 min(costs))
+        return two_modes(X, costs, d.index("pelvis_ry"))
+
+    def _climb_seeds(self, seeds):
+        """The automatic start's climbs, one per seed pose: (poses, costs)."""
         X, costs = [], []
         for x in seeds:
             wide = 6.0 * self.sigma
@@ -504,9 +525,7 @@ class HillClimbDepthTracker(Tracker):
                 x, wide = res.x, wide * 0.5
             X.append(x)
             costs.append(float(res.cost))
-        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
-                 min(costs))
-        return two_modes(X, costs, d.index("pelvis_ry"))
+        return X, costs
 
     def close(self):
         self.likelihood.release()
