@@ -243,26 +243,25 @@ class HillClimbDepthTracker(Tracker):
         depth = float(cost) - float(self.prior(x, x_pred)[0])
         return max(depth, 0.0) / max(self.likelihood.area, 1e-9)
 
-    #: score every grid point of a climb, the centre included (see ``start_hypotheses``)
-    _rescore_centre = False
-
-    def _climb(self, cost, x, order, steps, levels, cost0=None):
+    def _climb(self, cost, x, order, steps, levels, cost0=None, rescore_centre=False):
         d = self.body.dofs
         return hill_climb(cost, x, order, steps, levels=levels, grid=self.opt.grid,
                           shrink=self.opt.shrink, batch_independent=self.opt.batch_limbs,
                           lower=d.lower, upper=d.upper, passes=self.opt.passes,
-                          cost0=None if self._rescore_centre else cost0,
-                          rescore_centre=self._rescore_centre)
+                          cost0=None if rescore_centre else cost0,
+                          rescore_centre=rescore_centre)
 
     def refine(self, x_start, x_pred, steps=None, levels=None, extra=None, prior_weight=None,
-               stages=None):
+               stages=None, rescore_centre=False):
         """Hill-climb from ``x_start`` under the prior centred on ``x_pred`` (weighted by
         ``prior_weight``, default the option).
 
         One coarse-to-fine sweep down the kinematic chain, then ``refine_passes`` (or ``extra``)
         sweeps over the limbs only at half the step (the limbs were searched while the torso
         was still moving), each followed by a torso re-check at a quarter of the step.
-        ``stages`` ("parts" or "chain") overrides the option of that name.
+        ``stages`` ("parts" or "chain") overrides the option of that name; ``rescore_centre``
+        ("chain" only): every grid point is scored, the centre included
+        (:func:`gltrack.sample.hillclimb.hill_climb_lanes`).
 
         Returns
         -------
@@ -277,15 +276,16 @@ class HillClimbDepthTracker(Tracker):
         evals = calls = 0
         c0 = None
         if self.opt.heading_hypotheses > 1:
-            x_start, c0, evals, calls = self._best_heading(cost, x_start, steps, levels)
-        res = self._climb(cost, x_start, self.order, steps, levels, cost0=c0)
+            x_start, c0, evals, calls = self._best_heading(cost, x_start, steps, levels,
+                                                           rescore_centre)
+        res = self._climb(cost, x_start, self.order, steps, levels, c0, rescore_centre)
         evals, calls = evals + res.evaluations, calls + res.calls
         for _ in range(self.opt.refine_passes if extra is None else extra):
             for order, h in ((self.limb_order, 0.5), (self.torso_dofs, 0.25)):
                 if not order:
                     continue
                 r = self._climb(cost, res.x, order, h * steps, max(1, levels - 1),
-                                cost0=res.cost)
+                                res.cost, rescore_centre)
                 evals, calls = evals + r.evaluations, calls + r.calls
                 if r.cost <= res.cost:
                     res = r
@@ -346,7 +346,7 @@ class HillClimbDepthTracker(Tracker):
                 x, c = r.X[0], float(r.cost[0])
         return HillClimbResult(x, c, evals, calls)
 
-    def _best_heading(self, cost, x, steps, levels):
+    def _best_heading(self, cost, x, steps, levels, rescore_centre=False):
         """Climb the root DOFs from ``heading_hypotheses`` pelvis headings; the best root pose.
 
         Why: a subject turning faster than the prediction allows leaves the true heading
@@ -367,7 +367,7 @@ class HillClimbDepthTracker(Tracker):
                              grid=self.opt.grid, shrink=self.opt.shrink,
                              batch_independent=self.opt.batch_limbs, lower=d.lower,
                              upper=d.upper, passes=self.opt.passes,
-                             rescore_centre=self._rescore_centre)
+                             rescore_centre=rescore_centre)
         k = self.pick_heading(r.cost)
         return r.X[k], float(r.cost[k]), r.evaluations, r.calls
 
@@ -498,21 +498,11 @@ class HillClimbDepthTracker(Tracker):
         twins = seeds.copy()
         twins[:, d.index("pelvis_ry")] += np.pi
         seeds = np.concatenate([seeds, d.validate(twins)])
-        # The full grid, the centres re-scored, as before the per-frame climb skipped them: the
-        # start is one frame, so its candidates do not matter, and the body estimate that
-        # starts from it was measured worse with the centres skipped (four simulated depth
-        # subjects, 1.62-1.92 m: 6-47 mm off in height, mean 23, against 5-27, mean 13)
-        self._rescore_centre = True
-        try:
-            X, costs = self._climb_seeds(seeds)
-        finally:
-            self._rescore_centre = False
-        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
-                 min(costs))
-        return two_modes(X, costs, d.index("pelvis_ry"))
-
-    def _climb_seeds(self, seeds):
-        """The automatic start's climbs, one per seed pose: (poses, costs)."""
+        # The full grid, the centres re-scored (``rescore_centre``), as before the per-frame
+        # climb skipped them: the start is one frame, so its candidates do not matter, and the
+        # body estimate that starts from it was measured worse with the centres skipped (four
+        # simulated depth subjects, 1.62-1.92 m: 6-47 mm off in height, mean 23, against 5-27,
+        # mean 13)
         X, costs = [], []
         for x in seeds:
             wide = 6.0 * self.sigma
@@ -521,11 +511,14 @@ class HillClimbDepthTracker(Tracker):
                 # DOF by DOF: a global search from a library pose moves far, and there the
                 # stages' Jacobi steps fell short (a side-on body turned 90 degrees: 0.29 m
                 # mean joint error against 0.01 m); one frame, so its calls do not matter
-                res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0, stages="chain")
+                res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0, stages="chain",
+                                  rescore_centre=True)
                 x, wide = res.x, wide * 0.5
             X.append(x)
             costs.append(float(res.cost))
-        return X, costs
+        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
+                 min(costs))
+        return two_modes(X, costs, d.index("pelvis_ry"))
 
     def close(self):
         self.likelihood.release()
