@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gltrack.camera import Camera, look_at_camera
-from gltrack.observe.foreground import (ForegroundParams, estimate_foreground, fill_boxes,
+from gltrack.observe.foreground import (CUES, ForegroundParams, estimate_foreground, fill_boxes,
                                         masked_median, shared_volume)
 
 W, H = 160, 120
@@ -137,6 +137,33 @@ def test_person_masks_fix_the_background_of_a_subject_that_barely_moves():
     assert _mean_iou(given.masks, truth).mean() > _mean_iou(plain.masks, truth).mean() + 0.2
 
 
+def test_ghost_test_drops_the_background_where_the_subject_stood():
+    """The subject stands still for 10 frames, then walks off in 0.2 m steps (6 frames): the
+    temporal median holds it where it stood, so that spot (its "ghost") is foreground in the
+    walking frames. The ghost test drops it (the true background there recurs in a third of
+    the frames) and keeps the walking subject (each pixel covered in a frame or two)."""
+    rng = np.random.default_rng(11)
+    xs = np.r_[np.full(10, -0.45), np.arange(-0.25, 0.76, 0.2)]
+    cams, frames, truth, _ = _scene(rng, xs, distractor=False)
+    walk = slice(10, len(xs))
+    ghost = [truth[c][0][None] & ~truth[c][walk] for c in range(4)]
+
+    def measure(cues, passes):
+        r = estimate_foreground(frames, cams, cues=cues, passes=passes)
+        kept = np.mean([r.masks[c][walk][ghost[c]].mean() for c in range(4)])
+        return kept, _mean_iou([m[walk] for m in r.masks], [t[walk] for t in truth]).mean()
+
+    kept, iou = measure((), 1)
+    kept_g, iou_g = measure(("ghosts",), 1)
+    assert kept > 0.9 and kept_g < 0.15, (kept, kept_g)
+    assert iou_g > iou + 0.2, (iou, iou_g)
+    full = [c for c in CUES if c != "ghosts"]
+    kept, iou = measure(full, 2)
+    kept_g, iou_g = measure(full + ["ghosts"], 2)
+    assert kept > 0.5 and kept_g < 0.1, (kept, kept_g)
+    assert iou_g > 0.8 and iou_g > iou + 0.2, (iou, iou_g)
+
+
 def test_helpers_and_errors():
     cams = _cameras()
     b = shared_volume(cams)
@@ -160,6 +187,8 @@ def test_helpers_and_errors():
         estimate_foreground([[img, img]] * 4, cams, cues=("magic",))
     with pytest.raises(ValueError, match="ForegroundParams.passes"):
         ForegroundParams(passes=0)
+    with pytest.raises(ValueError, match="ForegroundParams.ghost_recurrence"):
+        ForegroundParams(ghost_recurrence=0.0)
 
 
 def _pose2sim_cameras(folder, sizes):

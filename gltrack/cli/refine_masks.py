@@ -8,11 +8,18 @@ HELP = ("refine a recorded dataset's foreground masks with the silhouettes of a 
 
 
 def add_arguments(p):
+    from gltrack.data.refine_masks import METHODS
     from gltrack.observe.model_masks import BAND_M, REACH_M
 
     p.add_argument("dataset", help="multi-view dataset folder with masks (gltrack ingest)")
     p.add_argument("result", help="results folder tracked on that dataset (look at its overlay "
                                   "first: a track that is off the person refines the masks wrong)")
+    p.add_argument("--method", choices=METHODS, default="grabcut",
+                   help="background: estimate the sequence's foreground again with the model's "
+                        "silhouettes left out of the background statistics "
+                        "(removes the subject's ghost, finds parts that never move); grabcut: "
+                        "GrabCut per frame seeded by the model, the sequence's mask kept within "
+                        "--reach")
     p.add_argument("--band", type=float, default=BAND_M, metavar="M",
                    help="metres around the model's silhouette where the colour segmentation "
                         "decides (beyond: background)")
@@ -33,7 +40,8 @@ def run(args) -> int:
         if not 0.0 < v <= 2.0:
             raise UsageError(f"{flag} must be in (0, 2] metres, got {v:g}")
     frames = parse_frames(args.frames) if args.frames is not None else None
-    rec = refine_dataset_masks(args.dataset, args.result, band_m=args.band, reach_m=args.reach,
+    rec = refine_dataset_masks(args.dataset, args.result, method=args.method,
+                               band_m=args.band, reach_m=args.reach,
                                frames=frames, progress=not args.quiet)
     if not args.quiet:
         print(f"{args.dataset}: masks of {rec['frames']} frames refined with {args.result} in "

@@ -1,13 +1,23 @@
 """Refine a dataset's foreground masks with a tracked result (``gltrack refine-masks DS R``).
 
 For every frame the result holds and every colour camera, the body the result recorded
-(``body.json``) is posed at the frame's ``params``, its silhouette is projected into the real
-image, and :func:`gltrack.observe.model_masks.refine_with_model` combines it with the mask the
-dataset has (see that module for why both). The refined masks replace ``camN_mask/``; the masks
+(``body.json``) is posed at the frame's ``params`` and its silhouette projected into the real
+image. Two ways of using it (``method=``):
+
+* ``"background"``: the sequence foreground of ``ingest`` is estimated again with the model's
+  silhouettes left out of the temporal background (:func:`_background_pass`): the subject's
+  ghost goes and the parts that never move come back, and the hull, GrabCut and shadow cues
+  run as in ``ingest``;
+* ``"grabcut"``: per frame and camera, :func:`gltrack.observe.model_masks.refine_with_model`
+  combines the silhouette with the mask the dataset has (GrabCut seeded by the model, the
+  sequence mask kept within reach; see that module for why both).
+
+The refined masks replace ``camN_mask/``; the masks
 they replaced are moved to ``camN_mask_sequence/`` the first time (a later refinement keeps that
 copy, so every refinement starts from the sequence's masks again, never from its own output).
-Frames the result does not hold keep the sequence's mask. ``meta.json``'s ``"masks"`` gets a
-``"refined"`` record (result, frames, band, reach, seconds).
+Frames the result does not hold keep the sequence's mask (``"grabcut"``) or have it left out of
+the background (``"background"``). ``meta.json``'s ``"masks"`` gets a ``"refined"`` record
+(result, method, frames, band, reach, seconds).
 
 Everything is written into temporary folders first and swapped in at the end, so an interrupted
 run leaves the dataset as it was (at worst a ``.camN_mask.refining`` folder, removed by the next
@@ -25,6 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gltrack.observe.foreground import _dilate
 from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, model_silhouette,
                                          refine_with_model)
 
@@ -39,8 +50,118 @@ def _pixels(camera, metres: float, depth: float) -> int:
     return max(int(round(camera.fx * metres / max(depth, 0.1))), 1)
 
 
-def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: float = REACH_M,
-                         core_m: float = CORE_M, frames=None, progress: bool = False) -> dict:
+def _read_mask(folder: Path, f: int) -> np.ndarray:
+    src = folder / f"{f:06d}.png"
+    seq = cv2.imread(str(src), cv2.IMREAD_GRAYSCALE)
+    if seq is None:
+        raise ValueError(f"{src}: not a readable mask")
+    return seq > 127
+
+
+class _Posed:
+    """The result's model, posed and projected on demand: one frame at a time, cached."""
+
+    def __init__(self, ds, cams, body, by_frame):
+        self.ds, self.cams, self.body, self.by_frame = ds, cams, body, by_frame
+        self._frame, self._verts = None, None
+
+    def vertices(self, f: int):
+        """(V, 3) posed vertices of frame f, or None where the result has no pose."""
+        from gltrack.render.reference import skin_vertices
+
+        if f not in self.by_frame:
+            return None
+        if self._frame != f:
+            self._verts = skin_vertices(self.body.mesh,
+                                        self.body.skinning(self.by_frame[f][None]))[0]
+            self._frame = f
+        return self._verts
+
+    def silhouette(self, f: int, j: int):
+        """(silhouette (H, W) bool, median depth in metres) of frame f in camera ``cams[j]``,
+        or (None, None)."""
+        v = self.vertices(f)
+        if v is None:
+            return None, None
+        cam = self.ds.cameras[self.cams[j]]
+        return (model_silhouette(cam, v, self.body.mesh.faces),
+                float(np.median(cam.depth_of(v))))
+
+
+def _grabcut_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
+    """Per frame and camera: GrabCut seeded by the model and the sequence mask
+    (:func:`refine_with_model`). Yields (frame, camera position, sequence mask, refined)."""
+    from tqdm import tqdm
+
+    for f in tqdm(range(ds.frames), desc="refine masks", unit="frame", disable=not progress):
+        for j, k in enumerate(cams):
+            seq = _read_mask(source[k], f)
+            sil, depth = posed.silhouette(f, j)
+            if sil is None:
+                yield f, j, seq, seq
+                continue
+            cam = ds.cameras[k]
+            yield f, j, seq, refine_with_model(ds.colour(f, k), seq, sil,
+                                               band_px=_pixels(cam, band_m, depth),
+                                               reach_px=_pixels(cam, reach_m, depth),
+                                               core_px=_pixels(cam, core_m, depth))
+
+
+def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
+    """The sequence foreground again, with the model left out of the background statistics.
+
+    The temporal background of ``ingest`` averages the subject in wherever it stood in most
+    frames: where it later moves away, that "ghost" is foreground (a door behind a person who
+    stood in front of it), and a still part is background. With the tracked model's silhouette
+    left out of every frame's statistics
+    (:func:`~gltrack.observe.foreground.estimate_foreground`'s ``person_masks``), the background
+    there comes from the frames where the subject was elsewhere, or, where it never left, from
+    the surroundings (inpainted), so the whole chain (hull, GrabCut, shadows) runs on a
+    background without the subject. The silhouette is widened by ``core_m``, the model's fitting
+    error at a limb's edge, and by the estimator's own ``exclude_margin``: a wider margin leaves
+    more background unobserved (inpainted) round a subject that barely moves. Frames the result
+    does not hold leave out their sequence mask. ``band_m`` and ``reach_m`` are not used.
+    """
+    from tqdm import tqdm
+
+    from gltrack.observe.foreground import ForegroundParams, estimate_foreground
+
+    rec = ds.meta.get("masks") if isinstance(ds.meta.get("masks"), dict) else {}
+    params = ForegroundParams(**{k: rec[k] for k in ("work_size", "passes") if k in rec})
+    person = []
+    for j, k in enumerate(cams):
+        cam = ds.cameras[k]
+        stack = np.zeros((ds.frames, cam.height, cam.width), bool)
+        for f in tqdm(range(ds.frames), desc=f"model silhouettes {cam.name}", unit="frame",
+                      disable=not progress):
+            sil, depth = posed.silhouette(f, j)
+            stack[f] = (_read_mask(source[k], f) if sil is None
+                        else _dilate(sil, _pixels(cam, core_m, depth)))
+        person.append(stack)
+
+    def feed(k):
+        for f in range(ds.frames):
+            yield ds.colour(f, k)
+
+    res = estimate_foreground([feed(k) for k in cams], [ds.cameras[k] for k in cams],
+                              person_masks=person, params=params)
+    for f in range(ds.frames):
+        for j, k in enumerate(cams):
+            cam = ds.cameras[k]
+            m = res.masks[j][f]
+            if m.shape != (cam.height, cam.width):  # as ingest writes them
+                m = cv2.resize(m.astype(np.float32), (cam.width, cam.height),
+                               interpolation=cv2.INTER_LINEAR) >= 0.5
+            yield f, j, _read_mask(source[k], f), m
+
+
+#: the ways of refining (``method=``)
+METHODS = ("background", "grabcut")
+
+
+def refine_dataset_masks(dataset, result, *, method: str = "grabcut", band_m: float = BAND_M,
+                         reach_m: float = REACH_M, core_m: float = CORE_M, frames=None,
+                         progress: bool = False) -> dict:
     """Refine the masks of ``dataset`` with the tracked ``result`` (see the module docstring).
 
     Parameters
@@ -62,12 +183,11 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
     ValueError
         A dataset without colour cameras or masks, or a result without poses for it.
     """
-    from tqdm import tqdm
-
     from gltrack.data.dataset import META, Dataset
     from gltrack.data.results import _atomic_write_bytes, load_body_record, load_results
-    from gltrack.render.reference import skin_vertices
 
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     t0 = time.perf_counter()
     frames_wanted = frames
     ds = Dataset.open(dataset)
@@ -108,30 +228,17 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
             name = ds.cameras[k].name
             kept = path / f"{name}{SEQUENCE_SUFFIX}"
             source[k] = kept if kept.is_dir() else path / f"{name}_mask"
-        for f in tqdm(range(ds.frames), desc="refine masks", unit="frame", disable=not progress):
-            posed = None
+        posed = _Posed(ds, cams, body, by_frame)
+        refine = _background_pass if method == "background" else _grabcut_pass
+        for f, j, seq, out in refine(ds, cams, source, posed, band_m=band_m, reach_m=reach_m,
+                                     core_m=core_m, progress=progress):
+            k = cams[j]
             if f in by_frame:
-                posed = skin_vertices(body.mesh, body.skinning(by_frame[f][None]))[0]
-            for j, k in enumerate(cams):
-                cam = ds.cameras[k]
-                src = source[k] / f"{f:06d}.png"
-                seq = cv2.imread(str(src), cv2.IMREAD_GRAYSCALE)
-                if seq is None:
-                    raise ValueError(f"{src}: not a readable mask")
-                seq = seq > 127
-                out = seq
-                if posed is not None:
-                    sil = model_silhouette(cam, posed, body.mesh.faces)
-                    depth = float(np.median(cam.depth_of(posed)))
-                    out = refine_with_model(ds.colour(f, k), seq, sil,
-                                            band_px=_pixels(cam, band_m, depth),
-                                            reach_px=_pixels(cam, reach_m, depth),
-                                            core_px=_pixels(cam, core_m, depth))
-                    before[j] += seq.mean()
-                    after[j] += out.mean()
-                if not cv2.imwrite(str(tmp[k] / f"{f:06d}.png"),
-                                   np.where(out, 255, 0).astype(np.uint8)):
-                    raise OSError(f"{tmp[k] / f'{f:06d}.png'}: cannot write the refined mask")
+                before[j] += seq.mean()
+                after[j] += out.mean()
+            if not cv2.imwrite(str(tmp[k] / f"{f:06d}.png"),
+                               np.where(out, 255, 0).astype(np.uint8)):
+                raise OSError(f"{tmp[k] / f'{f:06d}.png'}: cannot write the refined mask")
         # swap in: the sequence's masks are kept once, later refinements replace their output
         for k in cams:
             name = ds.cameras[k].name
@@ -145,7 +252,7 @@ def refine_dataset_masks(dataset, result, *, band_m: float = BAND_M, reach_m: fl
         for folder in tmp.values():
             shutil.rmtree(folder, ignore_errors=True)
     n = max(len(by_frame), 1)
-    record = {"result": str(Path(result).resolve()), "frames": len(by_frame),
+    record = {"result": str(Path(result).resolve()), "method": method, "frames": len(by_frame),
               "band_m": band_m, "reach_m": reach_m, "core_m": core_m,
               "seconds": round(time.perf_counter() - t0, 1),
               "foreground_fraction_before": [round(float(b / n), 4) for b in before],
