@@ -156,3 +156,12 @@ def test_no_person_is_a_one_line_error(tmp_path, ctx):
     render_dataset(tmp_path / "empty", body, P, cams, FPS, np.random.default_rng(3))
     with pytest.raises(ValueError, match="no person"):
         estimate_body(Dataset.open(tmp_path / "empty"), ctx, frames=[0])
+
+
+def test_an_unusual_estimated_stature_is_flagged():
+    from gltrack.track.bodies import USUAL_STATURE, unusual_stature
+
+    assert unusual_stature(1.75) is None and unusual_stature(USUAL_STATURE[1]) is None
+    msg = unusual_stature(2.28)  # the Pose2Sim take's body before the ghost test
+    assert "2.28 m" in msg and "--body" in msg
+    assert "1.20 m" in unusual_stature(1.2)

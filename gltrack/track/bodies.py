@@ -32,6 +32,22 @@ log = logging.getLogger(__name__)
 CHOICES = ("estimate", "dataset")
 
 
+#: (low, high) metres: the statures most adults have (about the 0.1st to 99.9th percentiles of
+#: adult men and women in surveys worldwide). Outside it an estimate is more likely wrong (masks
+#: that take in background, or miss the body) than the subject unusual, so it is worth a look.
+USUAL_STATURE = (1.40, 2.05)
+
+
+def unusual_stature(height: float) -> str | None:
+    """A warning for an estimated stature (metres) outside :data:`USUAL_STATURE`, else None."""
+    lo, hi = USUAL_STATURE
+    if lo <= height <= hi:
+        return None
+    return (f"estimated stature {height:.2f} m is outside {lo:.2f}-{hi:.2f} m, where most adults "
+            "are: check the masks (gltrack render shows the model over them) or give the body "
+            "(--body FILE.json)")
+
+
 def estimate_frames(dataset, start: int, stop: int, n_frames: int = 3, span: float = 0.4) -> list:
     """The frames a body estimate uses: ``n_frames`` spread over the first ``span`` seconds of
     the tracked range ``start:stop`` (the defaults of
@@ -81,6 +97,9 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
                             rng=rng if rng is not None else np.random.default_rng(0))
         log.info("body estimated from frames %s in %.1f s: stature %.3f m, girth scale %.2f",
                  est.frames, est.seconds, est.skeleton.height(), est.girth_scale)
+        warn = unusual_stature(est.skeleton.height())
+        if warn:
+            log.warning("%s: %s", dataset.path, warn)
         rec = body_record(est.body, "estimate")
         rec["estimate"] = {"frames": [int(f) for f in est.frames], "costs": est.costs,
                            "unit": est.unit, "seconds": float(est.seconds),
