@@ -189,6 +189,8 @@ def test_helpers_and_errors():
         ForegroundParams(passes=0)
     with pytest.raises(ValueError, match="ForegroundParams.ghost_recurrence"):
         ForegroundParams(ghost_recurrence=0.0)
+    with pytest.raises(ValueError, match="ForegroundParams.ghost_gap"):
+        ForegroundParams(ghost_gap=-0.1)
 
 
 def _pose2sim_cameras(folder, sizes):

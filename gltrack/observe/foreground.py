@@ -359,6 +359,8 @@ class ForegroundParams:
         if not 0 < self.ghost_recurrence <= 1:
             raise ValueError(f"ForegroundParams.ghost_recurrence must be in (0, 1], got "
                              f"{self.ghost_recurrence}")
+        if not 0 <= self.ghost_gap < 1:
+            raise ValueError(f"ForegroundParams.ghost_gap must be in [0, 1), got {self.ghost_gap}")
         if not 0 <= self.min_observed < 1:
             raise ValueError(f"ForegroundParams.min_observed must be in [0, 1), got "
                              f"{self.min_observed}")

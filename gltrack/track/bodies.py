@@ -32,9 +32,9 @@ log = logging.getLogger(__name__)
 CHOICES = ("estimate", "dataset")
 
 
-#: (low, high) metres: the statures most adults have (about the 0.1st to 99.9th percentiles of
-#: adult men and women in surveys worldwide). Outside it an estimate is more likely wrong (masks
-#: that take in background, or miss the body) than the subject unusual, so it is worth a look.
+#: (low, high) metres: the statures most adults have (roughly the 0.1st percentile of adult
+#: women to the 99.9th of adult men in national surveys). Outside it an estimate is more likely
+#: wrong (masks that take in background, or miss the body) than the subject unusual: worth a look.
 USUAL_STATURE = (1.40, 2.05)
 
 
