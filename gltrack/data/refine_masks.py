@@ -128,16 +128,14 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
 
     rec = ds.meta.get("masks") if isinstance(ds.meta.get("masks"), dict) else {}
     params = ForegroundParams(**{k: rec[k] for k in ("work_size", "passes") if k in rec})
-    person = []
-    for j, k in enumerate(cams):
-        cam = ds.cameras[k]
-        stack = np.zeros((ds.frames, cam.height, cam.width), bool)
-        for f in tqdm(range(ds.frames), desc=f"model silhouettes {cam.name}", unit="frame",
-                      disable=not progress):
+    person = [np.zeros((ds.frames, ds.cameras[k].height, ds.cameras[k].width), bool)
+              for k in cams]
+    # frame by frame, so the model is posed once per frame (``_Posed`` keeps one frame)
+    for f in tqdm(range(ds.frames), desc="model silhouettes", unit="frame", disable=not progress):
+        for j, k in enumerate(cams):
             sil, depth = posed.silhouette(f, j)
-            stack[f] = (_read_mask(source[k], f) if sil is None
-                        else _dilate(sil, _pixels(cam, core_m, depth)))
-        person.append(stack)
+            person[j][f] = (_read_mask(source[k], f) if sil is None
+                            else _dilate(sil, _pixels(ds.cameras[k], core_m, depth)))
 
     def feed(k):
         for f in range(ds.frames):
