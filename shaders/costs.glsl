@@ -41,12 +41,17 @@ vec4 pixel_costs(ivec2 p) {
     // Ganapathi's smoothed likelihood: best model pixel in the 3x3 neighbourhood (inside the tile),
     // paying a constant penalty for not being the pixel itself.
     float best = depth_pixel(zo, texelFetch(model_z, p, 0).r);
-    for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
-            ivec2 q = local + ivec2(dx, dy);
-            if ((dx == 0 && dy == 0) || any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, ivec2(tile))))
-                continue;
-            best = min(best, depth_pixel(zo, texelFetch(model_z, p + ivec2(dx, dy), 0).r) + depth_params.w);
+    // Costs are never negative, so a pixel whose own cost is 0 (nothing seen and no model: most
+    // of a tile) cannot do better: skip its neighbours. Why: the neighbours are 8 of the 10
+    // texture reads of a pixel, and the reduction is most of a software renderer's time.
+    if (best > 0.0) {
+        for (int dy = -1; dy <= 1; ++dy) {
+            for (int dx = -1; dx <= 1; ++dx) {
+                ivec2 q = local + ivec2(dx, dy);
+                if ((dx == 0 && dy == 0) || any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, ivec2(tile))))
+                    continue;
+                best = min(best, depth_pixel(zo, texelFetch(model_z, p + ivec2(dx, dy), 0).r) + depth_params.w);
+            }
         }
     }
     c.x = best;
