@@ -303,11 +303,11 @@ def test_heading_hypotheses_reach_a_turn_beyond_the_grid(ds, ctx):
         tr.opt.heading_hypotheses = 3
         lanes = tr.heading_starts(x0, steps)
         assert lanes.shape == (3, x0.size) and np.array_equal(lanes[1], x0)
-        r = tr._stage_climb(cost, lanes, [tr.root_dofs], steps, tr.opt.levels)
+        r = tr._stage_climb(cost, lanes, tr.root_stages, steps, tr.opt.levels)
         x = r.X[tr.pick_heading(r.cost)]
         assert abs(x[yaw] - target[yaw]) < 0.2 * tr.sigma[yaw]
         assert abs(x[0] - target[0]) < 0.2 * tr.sigma[0]
-        assert r.calls <= tr.opt.levels + 1 < single.calls
+        assert r.calls <= len(tr.root_stages) * tr.opt.levels + 1 < single.calls
         tr.opt.stages = "parts"
         rp = tr.refine(x0, x0)
         # one call per stage level, plus at most one check of a combined move per climb
@@ -377,7 +377,9 @@ def test_refine_chain_climbs_only_the_proposals_chain(ds, ctx):
     d = Dataset.open(ds)
     body = body_from_meta(d.body, None)
     x0 = d.groundtruth()["params"][1]
-    tr = EvidenceDepthTracker(d, body, ctx, EvidenceOptions(refine_chain=True))
+    with pytest.raises(ValueError, match="refine_chain"):
+        EvidenceOptions(refine_chain=True).validate()
+    tr = EvidenceDepthTracker(d, body, ctx, EvidenceOptions(refine_chain=True, stages="chain"))
     try:
         tr.start(0, d.groundtruth()["params"][0])
         tr.observe(1)

@@ -79,8 +79,9 @@ class EvidenceOptions(DepthOptions):
         detection to the nearer foot): see :func:`gltrack.evidence.associate.evidence_propagation`
     control_refine : refine the best pose with the same short climb as the proposals before
         comparing (so a proposal wins by its evidence, not by its extra climb)
-    refine_chain : a proposal's short climb searches only the DOFs between the root and its
-        part (the root, the spine and the part's own limb or neck), not every DOF: the IK moved
+    refine_chain : (``stages = "chain"`` only) a proposal's short climb searches only the DOFs
+        between the root and its part (the root, the spine and the part's own limb or neck),
+        not every DOF: the IK moved
         that chain alone and the rest was climbed a moment ago. Off by default: measured (hc+ep,
         true body and start, 60 frames, noise seeds 0 and 1, llvmpipe) it cuts the frame's
         candidates by 10-38 % (hop 1660-1760 -> 1070-1090, walk 1380-1450 -> 1030-1060, salsa
@@ -108,7 +109,9 @@ class EvidenceOptions(DepthOptions):
             *positive(self, "ik_sigmas", "meas_std"),
             *at_least(self, 0, "prune_radius", "accept_margin"),
             *at_least(self, 1, "refine_levels", "max_passes"),
-            *within(self, "min_confidence", 0, 1)]
+            *within(self, "min_confidence", 0, 1),
+            *(["refine_chain = true needs stages = \"chain\" (a stage climb searches every "
+               "DOF of its stages)"] if self.refine_chain and self.stages != "chain" else [])]
 
 
 def default_parts_model() -> Path:
