@@ -43,7 +43,7 @@ vec4 pixel_costs(ivec2 p) {
     float best = depth_pixel(zo, texelFetch(model_z, p, 0).r);
     // Costs are never negative, so a pixel whose own cost is 0 (nothing seen and no model: most
     // of a tile) cannot do better: skip its neighbours. Why: the neighbours are 8 of the 10
-    // texture reads of a pixel, and the reduction is most of a software renderer's time.
+    // texture reads of a pixel, and the reduction is a third of a software renderer's time.
     if (best > 0.0) {
         for (int dy = -1; dy <= 1; ++dy) {
             for (int dx = -1; dx <= 1; ++dx) {

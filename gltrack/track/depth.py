@@ -125,10 +125,11 @@ class DepthOptions(Options):
         against 48.3 mm (+4.6 +- 2.6), hop 73.3 against 77.5 (-4.3 +- 7.5), salsa 61.3 against
         65.3 (-4.0 +- 4.3), all 15 62.5 against 63.7 (-1.2 +- 3.0); failed markers 1.2 against
         1.7 %; 16-23 engine calls a frame against 116-158, and 1.37-1.42x the frames/s (the
-        per-call work and forward kinematics go). Before the root was split in two stages and
-        a rejected combined move kept the best candidate scored around it
-        (:func:`~gltrack.sample.hillclimb.stage_climb`), "parts" lost the hop: 122.5 mm
-        over the same five seeds
+        per-call work and forward kinematics go). hc alone over the same 15: 71.3 against
+        67.9 mm (+3.4 +- 4.3), 13 calls a frame against 99. Before the root was split in two
+        stages and a rejected combined move kept the best candidate scored around it
+        (:func:`~gltrack.sample.hillclimb.stage_climb`), "parts" lost the hop: 122.5 mm over
+        the same five seeds
     mesh_lod : level of detail of the procedural mesh the engine scores with
         (:func:`gltrack.body.mesh.make_body_mesh`: 0 = 1008 triangles, 1 = 1968, 2 = 7872);
         the run's body record keeps its own. 1 by default: measured (hc+ep, true body and

@@ -81,14 +81,13 @@ class EvidenceOptions(DepthOptions):
         comparing (so a proposal wins by its evidence, not by its extra climb)
     refine_chain : (``stages = "chain"`` only) a proposal's short climb searches only the DOFs
         between the root and its part (the root, the spine and the part's own limb or neck),
-        not every DOF: the IK moved
-        that chain alone and the rest was climbed a moment ago. Off by default: measured (hc+ep,
-        true body and start, 60 frames, noise seeds 0 and 1, llvmpipe) it cuts the frame's
-        candidates by 10-38 % (hop 1660-1760 -> 1070-1090, walk 1380-1450 -> 1030-1060, salsa
-        950-970 -> 860) and leaves walk and salsa exactly as they were, but on the hop clip no
-        proposal won any more while the body was turned wrong (mean marker error 0.096 -> 0.225
-        m and 0.061 -> 0.094 m): there a proposal's climb of the whole body is what recovers
-        the other limbs too
+        not every DOF: the IK moved that chain alone and the rest was climbed a moment ago.
+        Off by default: measured (hc+ep, true body and start, 60 frames, noise seeds 0 and 1,
+        llvmpipe) it cuts the frame's candidates by 10-38 % (hop 1660-1760 -> 1070-1090, walk
+        1380-1450 -> 1030-1060, salsa 950-970 -> 860) and leaves walk and salsa exactly as they
+        were, but on the hop clip no proposal won any more while the body was turned wrong
+        (mean marker error 0.096 -> 0.225 m and 0.061 -> 0.094 m): there a proposal's climb of
+        the whole body is what recovers the other limbs too
     """
 
     parts_model: str = ""
