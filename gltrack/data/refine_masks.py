@@ -35,7 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gltrack.observe.foreground import _dilate
+from gltrack.observe.foreground import dilate_mask
 from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, model_silhouette,
                                          refine_with_model)
 
@@ -135,7 +135,7 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
         for j, k in enumerate(cams):
             sil, depth = posed.silhouette(f, j)
             person[j][f] = (_read_mask(source[k], f) if sil is None
-                            else _dilate(sil, _pixels(ds.cameras[k], core_m, depth)))
+                            else dilate_mask(sil, _pixels(ds.cameras[k], core_m, depth)))
 
     def feed(k):
         for f in range(ds.frames):

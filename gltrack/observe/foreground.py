@@ -101,13 +101,16 @@ def _disk(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
-def _dilate(mask, radius: int) -> np.ndarray:
+def dilate_mask(mask, radius: int) -> np.ndarray:
+    """(H, W) bool ``mask`` grown by a disk of ``radius`` pixels (unchanged for radius <= 0);
+    shared with :mod:`.model_masks` and :mod:`gltrack.data.refine_masks`."""
     if radius <= 0:
         return np.asarray(mask, bool)
     return cv2.dilate(np.asarray(mask, np.uint8), _disk(radius)).astype(bool)
 
 
-def _erode(mask, radius: int) -> np.ndarray:
+def erode_mask(mask, radius: int) -> np.ndarray:
+    """(H, W) bool ``mask`` shrunk by a disk of ``radius`` pixels (unchanged for radius <= 0)."""
     if radius <= 0:
         return np.asarray(mask, bool)
     return cv2.erode(np.asarray(mask, np.uint8), _disk(radius)).astype(bool)
@@ -733,7 +736,7 @@ class SequenceForeground:
         fgish = seed_sure | seed_probable
         if not fgish.any():
             return None
-        band = _dilate(fgish if region is None else (fgish | region), band_px)
+        band = dilate_mask(fgish if region is None else (fgish | region), band_px)
         rows = np.flatnonzero(band.any(axis=1))
         cols = np.flatnonzero(band.any(axis=0))
         h, w = fgish.shape
@@ -830,7 +833,7 @@ class SequenceForeground:
                     # the hull is carved from shadow-free candidates; a pixel the shadow test
                     # took (dark clothes on a lighter wall of the same hue) comes back where
                     # the other views put the body
-                    hullm[c][t] = raw[c][t] & _dilate(sil[c], p.hull_margin)
+                    hullm[c][t] = raw[c][t] & dilate_mask(sil[c], p.hull_margin)
             else:
                 for c in range(C):
                     hullm[c][t] = cand[c][t]
@@ -843,7 +846,7 @@ class SequenceForeground:
             cam = self.cameras[c]
             f = 0.5 * (cam.fx + cam.fy)
             for t in range(T):
-                sure = _erode(hullm[c][t], 1)
+                sure = erode_mask(hullm[c][t], 1)
                 seed = sils[c][t] | hullm[c][t]
                 # the hull's reprojection (voxel boxes) is blocky: it bounds the body, so it is
                 # "probably background" like the seed's convex hull (the body between its
@@ -897,7 +900,7 @@ class SequenceForeground:
                                 list(self.full_size))
 
     def _dilate_stack(self, stack):
-        return np.stack([_dilate(m, self.params.exclude_margin) for m in stack])
+        return np.stack([dilate_mask(m, self.params.exclude_margin) for m in stack])
 
 
 def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=None,

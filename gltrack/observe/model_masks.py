@@ -30,7 +30,7 @@ import logging
 import cv2
 import numpy as np
 
-from .foreground import _dilate, _erode
+from .foreground import dilate_mask, erode_mask
 
 log = logging.getLogger(__name__)
 
@@ -111,9 +111,9 @@ def refine_with_model(image: np.ndarray, mask: np.ndarray, model: np.ndarray, *,
                          "must have the same size")
     if not model.any():
         return mask.copy()
-    band = _dilate(model, band_px)
-    reach = mask & _dilate(model, reach_px)
-    core = _erode(model, core_px)
+    band = dilate_mask(model, band_px)
+    reach = mask & dilate_mask(model, reach_px)
+    core = erode_mask(model, core_px)
     seed = np.full(mask.shape, cv2.GC_BGD, np.uint8)
     seed[band] = cv2.GC_PR_BGD
     seed[model | reach] = cv2.GC_PR_FGD
