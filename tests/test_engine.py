@@ -19,7 +19,7 @@ from gltrack.camera import look_at_camera
 from gltrack.gl.programs import ShaderError
 from gltrack.render import reference as ref
 from gltrack.render.engine import (CustomCost, DepthCostParams, ScoringEngine, grid_for,
-                                   silhouette_iou)
+                                   silhouette_iou, silhouette_overlap)
 
 TILE = 64
 
@@ -170,6 +170,36 @@ def test_model_channel_gives_silhouette_iou(ctx, body, rng):
         want = np.array([ref.silhouette_iou(rz[i], fg, block) for i in range(len(S))])
         assert np.abs(iou - want).max() < 0.02, (iou, want)
         assert iou[0] > 0.97 and iou[1:].min() < iou[0] - 0.05, iou
+        # the one-sided shares: model on foreground and foreground covered
+        got3 = np.stack(silhouette_overlap(got["compute"][:, c, 0], f_px,
+                                           got["compute"][:, c, 1]))
+        want3 = np.array([ref.silhouette_overlap(rz[i], fg, block) for i in range(len(S))]).T
+        np.testing.assert_allclose(got3[0], iou)
+        assert np.abs(got3 - want3).max() < 0.02, (got3, want3)
+        assert got3[1:, 0].min() > 0.97 and got3[1:, 1:].min() < 0.92, got3
+
+
+def test_silhouette_overlap_from_counts_and_from_masks():
+    """IoU, model on foreground and foreground covered from the engine's counts (M, F, XOR)
+    match the direct count of the CPU twin; an empty model or foreground gives NaN."""
+    m = np.zeros((4, 5), bool)
+    f = np.zeros((4, 5), bool)
+    m[0, :4] = True        # 4 model pixels
+    f[0, 1:5] = True       # 6 foreground pixels, 3 of them under the model
+    f[1, :2] = True
+    block = np.zeros_like(m)
+    block[0, 1] = True     # one shared pixel ignored: M 3, F 5, both 2
+    for bl, (M, F, both) in ((None, (4, 6, 3)), (block, (3, 5, 2))):
+        want = (both / (M + F - both), both / M, both / F)
+        np.testing.assert_allclose(ref.silhouette_overlap(m, f, bl), want)
+        np.testing.assert_allclose(silhouette_overlap(M, F, M + F - 2 * both), want)
+    assert ref.silhouette_iou(m, f) == pytest.approx(3 / 7)
+    empty = np.zeros_like(m)
+    iou, on_fg, covered = ref.silhouette_overlap(empty, f)
+    assert iou == 0.0 and np.isnan(on_fg) and covered == 0.0
+    iou, on_fg, covered = silhouette_overlap(np.array([0.0, 4.0]), 0.0, np.array([0.0, 4.0]))
+    assert np.isnan(iou[0]) and iou[1] == 0.0 and np.isnan(covered).all()
+    assert np.isnan(on_fg[0]) and on_fg[1] == 0.0
 
 
 def test_observation_resampled_to_tile(ctx, body, rng):

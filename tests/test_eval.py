@@ -268,6 +268,37 @@ def test_cli_eval_without_groundtruth_reports_quality(tmp_path, capsys):
     assert data["quality"]["iou_min"] == pytest.approx([0.7, 0.5])
 
 
+def test_eval_reports_which_side_of_the_silhouette_loses(tmp_path, capsys):
+    """With info["model_on_fg"] / info["fg_covered"] recorded, eval prints and writes their
+    per-camera means (frames without them left out); a result without them (older runs) keeps
+    the IoU-only table and NaN means."""
+    on_fg = [[0.9, 0.95], [0.8, None], [0.85, 0.9], [0.9, 0.9], [0.95, 0.85], [0.9, 0.9]]
+    covered = [[0.6, 0.7], [0.7, 0.5], [0.65, 0.6], [0.6, 0.7], [0.7, 0.6], [0.6, 0.5]]
+    infos = [{"iou": v, "model_on_fg": a, "fg_covered": b} for v, a, b in
+             zip(IOUS, on_fg, covered)]
+    infos[2] = {"iou": IOUS[2]}  # a frame without the shares
+    res, ds = make_dataset_and_result(tmp_path, 0.0, with_gt=False, infos=infos)
+    j = tmp_path / "q.json"
+    assert main(["eval", str(res), str(ds), "--json", str(j)]) == 0
+    out = capsys.readouterr().out
+    assert "model on fg" in out and "fg covered" in out
+    q = json.loads(j.read_text())["quality"]
+    keep = [0, 1, 3, 4, 5]
+    assert q["model_on_fg_mean"][0] == pytest.approx(np.mean([on_fg[i][0] for i in keep]))
+    assert q["model_on_fg_mean"][1] == pytest.approx(np.mean([0.95, 0.9, 0.85, 0.9]))
+    assert q["fg_covered_mean"] == pytest.approx(np.mean([covered[i] for i in keep], axis=0))
+    per = json.loads(j.read_text())["per_frame"]
+    assert per["fg_covered_cam1"][1] == pytest.approx(0.5)
+    # an older result: IoU only
+    res2, ds2 = make_dataset_and_result(tmp_path / "old", 0.0, with_gt=False,
+                                        infos=[{"iou": v} for v in IOUS])
+    assert main(["eval", str(res2), str(ds2), "--json", str(j)]) == 0
+    out = capsys.readouterr().out
+    assert "mean IoU" in out and "model on fg" not in out
+    q = json.loads(j.read_text())["quality"]
+    assert q["model_on_fg_mean"] == [None, None] and q["fg_covered_mean"] == [None, None]
+
+
 def test_joint_jitter_of_known_trajectories():
     from gltrack.eval.quality import joint_jitter, quality_summary
 

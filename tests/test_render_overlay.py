@@ -377,3 +377,57 @@ def test_multiview_grid_video_with_iou(tmp_path):
         # from the body, about 90 on it
         assert diff[far].mean() < 12.0 and diff[inside].mean() > 40.0, c
         assert np.any(diff[TEXT_BOX] > 50)  # frame, camera and IoU printed
+
+
+def test_mask_view_colours_model_against_the_foreground(tmp_path, capsys):
+    """``masks=True`` (``render --masks``): where the dataset's mask and the model agree the
+    frame is blended with MASK_BOTH_BGR, where only the mask is with MASK_ONLY_BGR, where only
+    the model is with MODEL_ONLY_BGR; the regions are the CPU rasteriser's silhouettes of the
+    true pose (the masks) and of a pose moved 0.2 m sideways (the result)."""
+    from gltrack.bench.multiview import RING, render_dataset
+    from gltrack.bench.rigs import ring_cameras
+    from gltrack.eval.overlay import ALPHA, MASK_BOTH_BGR, MASK_ONLY_BGR, MODEL_ONLY_BGR
+
+    body = BodyModel.build()
+    P = smooth_motion(body, 2, np.random.default_rng(4))
+    pelvis = body.joints(P[:1])[0, 0]
+    # two cameras large enough that the skeletons drawn over the body cover little of it
+    cams = ring_cameras((pelvis[0], 0.9, pelvis[2]), n=2, width=320, height_px=240,
+                        **dict(RING, radius=3.0, fov_y_deg=45.0))
+    ds = render_dataset(tmp_path / "ds", body, P, cams, 15.0, np.random.default_rng(5), noise=0.0)
+    Q = P.copy()
+    Q[:, 0] += 0.2
+    with ResultsWriter(tmp_path / "res", "hps", body.skeleton.names, body.markers.names) as w:
+        for f in range(2):
+            w.append(f, Q[f], body.joints(Q[f:f + 1])[0], body.marker_positions(Q[f:f + 1])[0])
+        w.finish()
+    with OverlayRenderer(tmp_path / "res", ds, masks=True) as r, \
+            OverlayRenderer(tmp_path / "res", ds) as plain:
+        for view in (r, plain):  # the skeletons' lines and halos would cover much of the body
+            view._draw_skeleton = lambda *a, **k: None
+        for c, cam in enumerate(cams):
+            img, raw = r.camera_frame(1, c), r.input_image(1, c)
+            fg = r.foreground(1, c)
+            truth = _silhouette({"body": body}, P[1], cam)
+            assert (fg == truth).mean() > 0.99  # the dataset's mask is the true silhouette
+            model = _silhouette({"body": body}, Q[1], cam)
+            k = np.ones((5, 5), np.uint8)  # off the anti-aliased outline
+
+            def core(m):
+                out = cv2.erode(m.astype(np.uint8), k).astype(bool)
+                out[TEXT_BOX] = False
+                return out
+            regions = [(core(fg & model), MASK_BOTH_BGR), (core(fg & ~model), MASK_ONLY_BGR),
+                       (core(model & ~fg), MODEL_ONLY_BGR)]
+            for region, bgr in regions:
+                assert region.sum() > 10, (c, bgr)
+                want = (1 - ALPHA) * raw[region].astype(float) + ALPHA * np.array(bgr, float)
+                assert np.abs(img[region] - want).max() <= 1.0, (c, bgr)
+            # the plain view leaves the mask-only pixels alone
+            base = plain.camera_frame(1, c)
+            np.testing.assert_array_equal(base[regions[1][0]], raw[regions[1][0]])
+    # the CLI flag
+    out = tmp_path / "m.mp4"
+    assert main(["-q", "render", str(tmp_path / "res"), str(ds), "--out", str(out),
+                 "--masks"]) == 0
+    assert len(_read_video(out)[0]) == 2

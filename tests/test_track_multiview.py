@@ -204,8 +204,9 @@ def test_mesh_lod_is_the_mesh_the_engine_scores(dataset, ctx):
 
 
 def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
-    """info["iou"]: one IoU per camera, equal to the CPU rasteriser's count against the
-    foreground at the IoU tile (the tracking tile or a finer one); a worse pose scores lower."""
+    """info["iou"], info["model_on_fg"], info["fg_covered"]: one value per camera, equal to the
+    CPU rasteriser's counts against the foreground at the IoU tile (the tracking tile or a finer
+    one); a worse pose scores lower."""
     from gltrack.data.dataset import Dataset
     from gltrack.render import reference as ref
     from gltrack.track.multiview import HpsOptions, HPSTracker
@@ -218,14 +219,21 @@ def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
         tr.start(0, P[0])
         est = tr.step(1)
         iou = est.info["iou"]
-        assert len(iou) == len(ds.cameras) and all(0.0 <= v <= 1.0 for v in iou)
+        for key in ("iou", "model_on_fg", "fg_covered"):
+            v = est.info[key]
+            assert len(v) == len(ds.cameras) and all(0.0 <= x <= 1.0 for x in v), key
+        # the IoU is at most either share (its union is at least either area)
+        assert all(i <= min(a, b) + 1e-9 for i, a, b in
+                   zip(iou, est.info["model_on_fg"], est.info["fg_covered"]))
         assert est.info["quality"] == pytest.approx(est.score / tr.area)
         _, fgs, blocks = tr.observe(1)
         bad = body.dofs.validate(P[1] + 0.3 * (np.arange(P.shape[1]) % 3 == 0))[0]
         means = []
         for tile in (None, 128):
             for pose in (est.params, bad):
-                got = tr.likelihood.silhouette_iou(pose, tile)
+                got3 = tr.likelihood.silhouette_overlap(pose, tile)
+                got = got3[0]
+                np.testing.assert_array_equal(got, tr.likelihood.silhouette_iou(pose, tile))
                 cams = [v.camera.scaled(tile or 64, tile or 64) for v in tr.engine.views]
                 S = body.skinning(pose[None])
                 want = []
@@ -235,11 +243,13 @@ def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
                     fg, bl = (cv2.resize(m.astype(np.uint8), size,
                                          interpolation=cv2.INTER_NEAREST_EXACT) > 0
                               for m in (fgs[c], blocks[c]))
-                    want.append(ref.silhouette_iou(rz[0], fg, bl))
-                assert np.abs(got - want).max() < 0.03, (tile, got, want)
+                    want.append(ref.silhouette_overlap(rz[0], fg, bl))
+                want = np.array(want).T  # (3, C)
+                assert np.abs(got3 - want).max() < 0.03, (tile, got3, want)
                 means.append(np.mean(got))
                 if tile == 128 and pose is est.params:
-                    np.testing.assert_allclose(iou, got, atol=1e-4)
+                    for k, key in enumerate(("iou", "model_on_fg", "fg_covered")):
+                        np.testing.assert_allclose(est.info[key], got3[k], atol=1e-4)
         assert means[1] < means[0] - 0.05 and means[3] < means[2] - 0.05, means
     finally:
         tr.close()

@@ -23,6 +23,10 @@ def add_arguments(p):
                    help="video frame rate (default: the dataset's)")
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="render only the first N frames of the result")
+    p.add_argument("--masks", action="store_true",
+                   help="show the model against each frame's foreground mask instead of its "
+                        "parts: green where both are, red where only the mask is (the masks "
+                        "hold what the model does not explain), blue where only the model is")
     add_dof_option(p, help="DOF preset the result was tracked with, for results without "
                         "RESULT/body.json (which records it; default: the dataset's body)")
 
@@ -50,7 +54,7 @@ def run(args):
     quiet = logging.getLogger().getEffectiveLevel() > logging.WARNING
     video = render_overlay(args.result, args.dataset, out, cameras=cameras,
                            max_frames=args.max_frames, progress=not quiet, fps=args.fps,
-                           preset=args.dof)
+                           preset=args.dof, masks=args.masks)
     print(f"{video.path}: overlay video written ({video.codec}, {video.frames} frames, "
           f"{video.size[0]}x{video.size[1]})")
     return 0

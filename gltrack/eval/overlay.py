@@ -77,6 +77,13 @@ _PART_BGR = np.array([
     (120, 140, 20), (170, 190, 60), (215, 230, 140),          # right leg: teal -> light cyan
 ], dtype=np.float64)
 
+#: Colours of the mask view (``masks=True``): where the model and the frame's foreground mask
+#: agree, where only the mask is (the masks hold what the model does not explain), where only
+#: the model is (the model sticks out of the masks).
+MASK_BOTH_BGR = (60, 200, 60)
+MASK_ONLY_BGR = (40, 40, 235)
+MODEL_ONLY_BGR = (235, 120, 30)
+
 #: The legend's part groups: (label, index into ``_PART_BGR`` of the colour shown). "left" and
 #: "right" are the subject's.
 PART_GROUPS = (("head", 0), ("torso", 1), ("pelvis", 2), ("left arm", 3), ("right arm", 6),
@@ -157,6 +164,11 @@ class OverlayRenderer:
         DOF preset of the result (default: the recorded one). The body is the one the results
         folder records in ``body.json``; results without one (older versions, or a result
         passed as a dict) use the dataset's body record.
+    masks : bool
+        Colour cameras with a foreground mask for the frame show the model against it instead
+        of the body parts: :data:`MASK_BOTH_BGR` where both are, :data:`MASK_ONLY_BGR` where
+        only the mask is, :data:`MODEL_ONLY_BGR` where only the model is (what the silhouette
+        IoU counts, at full resolution).
 
     Attributes
     ----------
@@ -165,7 +177,7 @@ class OverlayRenderer:
     depth_range : dict of camera name -> (near, far) metres used by :func:`depth_to_bgr`
     """
 
-    def __init__(self, result, dataset, cameras="all", preset=None):
+    def __init__(self, result, dataset, cameras="all", preset=None, masks: bool = False):
         from gltrack.data.dataset import Dataset
         from gltrack.data.results import check_result_world, internal_points, load_results, \
             recorded_body
@@ -192,6 +204,7 @@ class OverlayRenderer:
             raise ValueError(f"result frames {self.rows.min()}..{self.rows.max()} are outside the "
                              f"dataset's 0..{ds.frames - 1} ({ds.path})")
         self.cams = _select_cameras(ds, cameras)
+        self.masks = bool(masks)
         sk = self.body.skeleton
         names = list(self.result["joint_names"])
         self._bones = [(names.index(n), names.index(sk.names[p]))
@@ -334,8 +347,16 @@ class OverlayRenderer:
             posed = self._posed(i)
         colour, mask = self.model_layer(posed, c)
         alpha = ALPHA_DEPTH if cam.kind == "depth" else ALPHA
-        blended = (1.0 - alpha) * img[mask].astype(np.float64) + alpha * colour[mask]
-        img[mask] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
+        fg = self.foreground(i, c) if self.masks else None
+        painted = mask
+        if fg is not None:
+            colour = np.zeros_like(colour)
+            colour[mask & fg] = MASK_BOTH_BGR
+            colour[fg & ~mask] = MASK_ONLY_BGR
+            colour[mask & ~fg] = MODEL_ONLY_BGR
+            painted = mask | fg
+        blended = (1.0 - alpha) * img[painted].astype(np.float64) + alpha * colour[painted]
+        img[painted] = np.clip(np.round(blended), 0, 255).astype(np.uint8)
         if k > 1:
             img = cv2.resize(img, None, fx=k, fy=k, interpolation=cv2.INTER_NEAREST)
             mask = cv2.resize(mask.astype(np.uint8), None, fx=k, fy=k,
@@ -362,6 +383,17 @@ class OverlayRenderer:
             colours.append((80, 80, 255) if iou < IOU_LOW else None)
         _corner_text(img, lines, colours)
         return img
+
+    def foreground(self, i, c):
+        """(H, W) bool undistorted foreground mask of result row ``i`` in colour camera ``c``,
+        or None (a depth camera, or no mask for that frame)."""
+        cam = self.dataset.cameras[c]
+        if cam.kind != "colour":
+            return None
+        m = self.dataset.mask(int(self.rows[i]), c)
+        if m is None:
+            return None
+        return cam.undistort_image(m.astype(np.uint8), cv2.INTER_NEAREST) > 0
 
     def _posed(self, i):
         from gltrack.render import reference as ref
@@ -390,7 +422,7 @@ class OverlayRenderer:
                       for c in self.cams if self.dataset.cameras[c].kind == "depth"]
             gt = self.gt is not None and bool(self._gt_bones)
             self._legends[key] = legend_strip(width, text_scale(h), groundtruth=gt,
-                                              depth_ranges=ranges)
+                                              depth_ranges=ranges, masks=self.masks)
         return self._legends[key].copy()
 
     def frame(self, i, scale: int = 1, legend: bool = True) -> np.ndarray:
@@ -437,7 +469,7 @@ def _tick_step(span: float, fits: int) -> float:
 
 
 def legend_strip(width: int, scale: float, groundtruth: bool = True,
-                 depth_ranges=()) -> np.ndarray:
+                 depth_ranges=(), masks: bool = False) -> np.ndarray:
     """A strip saying what the overlay's colours mean.
 
     Left to right, wrapping onto more rows as ``width`` needs: a swatch per part group
@@ -452,6 +484,8 @@ def legend_strip(width: int, scale: float, groundtruth: bool = True,
     scale : float, OpenCV font scale (:func:`text_scale`)
     groundtruth : bool, list the ground-truth skeleton
     depth_ranges : sequence of (camera name, (near, far) metres)
+    masks : bool, the mask view's colours (model and mask, mask only, model only) instead of
+        the parts'
 
     Returns
     -------
@@ -463,8 +497,12 @@ def legend_strip(width: int, scale: float, groundtruth: bool = True,
     pad = max(3, th // 2)
     row_h = th + base + pad
     sw = th + 2
-    items = [(None, None, "model:")]
-    items += [("box", part_colour(k), label) for label, k in PART_GROUPS]
+    items = [(None, None, "silhouettes:" if masks else "model:")]
+    if masks:
+        items += [("box", MASK_BOTH_BGR, "model and mask"), ("box", MASK_ONLY_BGR, "mask only"),
+                  ("box", MODEL_ONLY_BGR, "model only")]
+    else:
+        items += [("box", part_colour(k), label) for label, k in PART_GROUPS]
     items += [("line", OUTLINE_BGR, "outline"), ("dots", TRACKED_BGR, "tracked")]
     if groundtruth:
         items.append(("dots", GROUNDTRUTH_BGR, "ground truth"))
@@ -774,7 +812,7 @@ def open_video_writer(out, fps: float, size):
 
 def render_overlay(result, dataset, out, cameras="all", max_frames=None, progress=True,
                    fps=None, preset=None, min_height: int | None = None,
-                   legend: bool = True) -> OverlayVideo:
+                   legend: bool = True, masks: bool = False) -> OverlayVideo:
     """Write an overlay video of a tracking result on its dataset.
 
     Parameters
@@ -795,6 +833,8 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
         neighbour, until the camera grid is at least this tall (default :data:`MIN_HEIGHT`;
         0 = never), so the video is watchable and its text readable.
     legend : bool, add the legend strip below the cameras (:func:`legend_strip`)
+    masks : bool, show the model against the frames' foreground masks (see
+        :class:`OverlayRenderer`)
 
     Returns
     -------
@@ -803,7 +843,7 @@ def render_overlay(result, dataset, out, cameras="all", max_frames=None, progres
         codec, frame count and size. Frames are padded with black to even width and height
         (what the encoders need).
     """
-    with OverlayRenderer(result, dataset, cameras, preset) as r:
+    with OverlayRenderer(result, dataset, cameras, preset, masks=masks) as r:
         return _write_video(r, out, max_frames, progress, fps,
                             MIN_HEIGHT if min_height is None else min_height, legend)
 

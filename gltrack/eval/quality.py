@@ -9,7 +9,11 @@ Two figures any take has, recorded or synthetic:
   ``info["iou"]`` (one value per colour camera, 0..1) in ``frames.jsonl``. Summarised per
   camera as the mean and the minimum over the frames, and the frames below
   :data:`IOU_LOW` (0.6: the issue's "no frame below" bound; a silhouette that poor means a limb
-  or the whole body is off the person).
+  or the whole body is off the person). Where the tracker records them (``info["model_on_fg"]``
+  and ``info["fg_covered"]``), the mean shares of the model's silhouette on the foreground and
+  of the foreground the model covers say which side loses: a low first share, the model sticks
+  out of the masks (too large, a limb off the person); a low second one, the masks hold what the
+  model does not explain (background taken for the person, a limb the model missed).
 * **joint jitter**: for each result frame t whose neighbours t - 1 and t + 1 were tracked too,
   the mean over the joints of ``|x_j(t+1) - 2 x_j(t) + x_j(t-1)|``, the norm of the second
   difference of joint j's position (its change of velocity from one frame to the next), in
@@ -94,10 +98,11 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         ``cameras`` (C,) names; ``iou_mean``, ``iou_min`` (C,) floats (NaN for a camera no frame
         has a value for); ``iou_frames_below`` dict camera -> list of frames with IoU < ``low``;
         ``iou_low`` = ``low``; ``iou_frames`` (frames with an IoU record);
+        ``model_on_fg_mean``, ``fg_covered_mean`` (C,) floats (NaN where not recorded);
         ``jitter_mean_mm``, ``jitter_p95_mm`` (mm/frame^2, NaN with fewer than 3 consecutive
         frames), ``jitter_frames``, ``jitter_joints`` (names); ``per_frame``: ``frame`` (N,),
-        ``iou_<camera>`` (N,) (NaN where not recorded) and ``jitter_mm`` (N,) (NaN at the ends
-        of a run of frames).
+        ``iou_<camera>``, ``model_on_fg_<camera>``, ``fg_covered_<camera>`` (N,) (NaN where not
+        recorded) and ``jitter_mm`` (N,) (NaN at the ends of a run of frames).
     """
     frames = np.asarray(result.get("frame", np.arange(len(result["joints"]))), dtype=np.int64)
     order = np.argsort(frames, kind="stable")
@@ -110,15 +115,27 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
             log.warning("frames.jsonl has %d IoU values per frame, the dataset %d colour "
                         "cameras: cameras named by index", C, len(names))
         names = [f"cam{k}" for k in range(C)]
-    table = np.full((len(frames), C), np.nan)
-    for i, v in enumerate(ious):
-        if isinstance(v, (list, tuple)) and len(v) == C:
-            table[i] = [np.nan if x is None else float(x) for x in v]
+
+    def per_camera(key):
+        """(N, C) of info[key] per frame and camera, NaN where not recorded."""
+        out = np.full((len(frames), C), np.nan)
+        for i, f in enumerate(frames):
+            v = infos.get(int(f), {}).get(key)
+            if isinstance(v, (list, tuple)) and len(v) == C:
+                out[i] = [np.nan if x is None else float(x) for x in v]
+        return out
+
+    def col_mean(col):
+        col = _finite(col)
+        return float(col.mean()) if col.size else float("nan")
+
+    table = per_camera("iou")
+    shares = {key: per_camera(key) for key in ("model_on_fg", "fg_covered")}
     recorded = np.isfinite(table).any(axis=1) if C else np.zeros(len(frames), bool)
     mean, mn, below = [], [], {}
     for k, name in enumerate(names):
         col = _finite(table[:, k])
-        mean.append(float(col.mean()) if col.size else float("nan"))
+        mean.append(col_mean(col))
         mn.append(float(col.min()) if col.size else float("nan"))
         below[name] = [int(f) for f, x in zip(frames, table[:, k]) if np.isfinite(x) and x < low]
 
@@ -132,10 +149,14 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
     per = {"frame": frames}
     for k, name in enumerate(names):
         per[f"iou_{name}"] = table[:, k]
+        for key, tab in shares.items():
+            per[f"{key}_{name}"] = tab[:, k]
     per["jitter_mm"] = per_jit
     return {
         "cameras": names, "iou_mean": mean, "iou_min": mn, "iou_frames_below": below,
         "iou_low": float(low), "iou_frames": int(recorded.sum()),
+        **{f"{key}_mean": [col_mean(tab[:, k]) for k in range(C)]
+           for key, tab in shares.items()},
         "jitter_mean_mm": float(good.mean()) if good.size else float("nan"),
         "jitter_p95_mm": float(np.percentile(good, 95)) if good.size else float("nan"),
         "jitter_frames": int(good.size), "jitter_joints": [jnames[i] for i in idx],
@@ -148,14 +169,27 @@ def quality_table(q: dict) -> str:
     lines = []
     if q["cameras"]:
         w = max(6, *(len(c) for c in q["cameras"]))
-        lines.append(f"{'camera':<{w}}  {'mean IoU':>8}  {'min IoU':>7}  frames < {q['iou_low']:g}")
-        for c, m, lo in zip(q["cameras"], q["iou_mean"], q["iou_min"]):
+        def fmt(v, width):
+            return f"{'n/a' if not np.isfinite(v) else f'{v:.3f}':>{width}}"
+
+        nan = [float("nan")] * len(q["cameras"])
+        on_fg, covered = q.get("model_on_fg_mean", nan), q.get("fg_covered_mean", nan)
+        shares = bool(np.isfinite(on_fg).any() or np.isfinite(covered).any())
+        extra = f"  {'model on fg':>11}  {'fg covered':>10}" if shares else ""
+        lines.append(f"{'camera':<{w}}  {'mean IoU':>8}  {'min IoU':>7}{extra}  "
+                     f"frames < {q['iou_low']:g}")
+        for c, m, lo, a, b_ in zip(q["cameras"], q["iou_mean"], q["iou_min"], on_fg, covered):
             b = q["iou_frames_below"][c]
             shown = ", ".join(str(f) for f in b[:8]) + (", ..." if len(b) > 8 else "")
-            fm = "n/a" if not np.isfinite(m) else f"{m:.3f}"
-            fl = "n/a" if not np.isfinite(lo) else f"{lo:.3f}"
-            lines.append(f"{c:<{w}}  {fm:>8}  {fl:>7}  {len(b)}" + (f" ({shown})" if b else ""))
+            extra = f"  {fmt(a, 11)}  {fmt(b_, 10)}" if shares else ""
+            lines.append(f"{c:<{w}}  {fmt(m, 8)}  {fmt(lo, 7)}{extra}  {len(b)}"
+                         + (f" ({shown})" if b else ""))
         lines.append(f"silhouette IoU of {q['iou_frames']} frames (frames.jsonl info 'iou')")
+        if shares:
+            lines.append("model on fg: share of the model's silhouette on the foreground (low: "
+                         "the model sticks out of the masks); fg covered: share of the "
+                         "foreground the model covers (low: the masks hold what the model does "
+                         "not explain)")
     else:
         lines.append("silhouette IoU: n/a (frames.jsonl records none: not a multi-view tracker, "
                      "or no frames.jsonl)")

@@ -17,7 +17,7 @@ import logging
 import cv2
 import numpy as np
 
-from gltrack.render.engine import ScoringEngine, silhouette_iou
+from gltrack.render.engine import ScoringEngine, silhouette_overlap
 
 from . import hls
 from .appearance import AppearanceModel
@@ -214,11 +214,18 @@ class SilhouetteLikelihood:
         return e_s, c_a
 
     def silhouette_iou(self, x: np.ndarray, tile: int | None = None) -> np.ndarray:
-        """Per-camera silhouette IoU of one pose against the current frame's foreground.
+        """Per-camera silhouette IoU of one pose against the current frame's foreground:
+        the first row of :meth:`silhouette_overlap` (same parameters)."""
+        return self.silhouette_overlap(x, tile)[0]
 
-        ``|M & F| / |M | F|`` over the unblocked pixels (those ``e_S`` counts), from the
-        engine's ``model`` channel M, the XOR count X and the foreground area F of each camera
-        (:func:`gltrack.render.engine.silhouette_iou`): one engine call.
+    def silhouette_overlap(self, x: np.ndarray, tile: int | None = None) -> np.ndarray:
+        """Per-camera silhouette IoU of one pose against the current frame's foreground, and
+        the shares of model and foreground that overlap.
+
+        ``|M & F| / |M | F|``, ``|M & F| / |M|`` and ``|M & F| / |F|`` over the unblocked
+        pixels (those ``e_S`` counts), from the engine's ``model`` channel M, the XOR count X
+        and the foreground area F of each camera
+        (:func:`gltrack.render.engine.silhouette_overlap`): one engine call.
 
         Parameters
         ----------
@@ -232,7 +239,8 @@ class SilhouetteLikelihood:
 
         Returns
         -------
-        (C,) float in 0..1, one per camera (1 where model and foreground are both empty)
+        (3, C) float in 0..1: IoU, model on foreground, foreground covered, per camera; NaN
+        where a denominator is empty (no model or no foreground in that camera)
         """
         eng, areas = self.engine, self.areas
         if tile is not None and int(tile) != self.engine.tile:
@@ -248,7 +256,7 @@ class SilhouetteLikelihood:
             areas = self._iou_areas
         r = eng.score(self.body.skinning(np.asarray(x, dtype=np.float64)[None]),
                       ["silhouette", "model"])[0]
-        return silhouette_iou(r[:, 0], areas, r[:, 1])
+        return np.stack(silhouette_overlap(r[:, 0], areas, r[:, 1]))
 
     def _iou_engine(self, tile):
         if self._iou_eng is None or self._iou_eng.tile != tile:

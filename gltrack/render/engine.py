@@ -779,6 +779,33 @@ def silhouette_iou(model_px, foreground_px, xor_px):
                         np.nan)
 
 
+def silhouette_overlap(model_px, foreground_px, xor_px):
+    """IoU and its two one-sided shares from the engine's counts (see :func:`silhouette_iou`).
+
+    Parameters
+    ----------
+    model_px, foreground_px, xor_px : arrays, as for :func:`silhouette_iou`
+
+    Returns
+    -------
+    iou : ``|M & F| / |M | F|``
+    model_on_fg : ``|M & F| / |M|``, the share of the model's silhouette on the foreground
+        (low: the model sticks out of the mask, e.g. too large or a limb off the person)
+    fg_covered : ``|M & F| / |F|``, the share of the foreground the model covers (low: the
+        mask holds what the model does not explain, e.g. background taken for the person, or
+        a limb the model missed)
+    each an array of float64 in 0..1 of the broadcast shape, NaN where its denominator is 0
+    """
+    m, f, x = (np.asarray(a, dtype=np.float64) for a in (model_px, foreground_px, xor_px))
+    inter = np.clip(0.5 * (m + f - x), 0.0, None)
+
+    def share(den):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(den > 0, np.clip(inter / np.where(den > 0, den, 1.0), 0.0, 1.0),
+                            np.nan)
+    return silhouette_iou(m, f, x), share(m), share(f)
+
+
 def choose_reduction(ctx: moderngl.Context) -> str:
     """The reduction ``reduction="auto"`` picks here: "compute" with GL 4.3, else "mipmap".
 

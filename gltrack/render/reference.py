@@ -366,9 +366,27 @@ def silhouette_iou(model_mask: np.ndarray, fg_mask: np.ndarray,
     float in 0..1, ``count(M & F & ~B) / count((M | F) & ~B)``; NaN when the union is empty
     (nothing to compare)
     """
+    return silhouette_overlap(model_mask, fg_mask, block_mask)[0]
+
+
+def silhouette_overlap(model_mask: np.ndarray, fg_mask: np.ndarray,
+                       block_mask: np.ndarray | None = None) -> tuple[float, float, float]:
+    """IoU, share of the model on the foreground and share of the foreground covered,
+    counted directly over the unblocked pixels (the twin of
+    :func:`gltrack.render.engine.silhouette_overlap`).
+
+    Returns
+    -------
+    (iou, model_on_fg, fg_covered) floats in 0..1: ``|M & F| / |M | F|``, ``|M & F| / |M|``,
+    ``|M & F| / |F|``; NaN where the denominator is empty
+    """
     m, f, keep = _masks(model_mask, fg_mask, block_mask)
-    union = np.count_nonzero((m | f) & keep)
-    return float(np.count_nonzero(m & f & keep)) / union if union else float("nan")
+    both = float(np.count_nonzero(m & f & keep))
+
+    def share(n):
+        return both / n if n else float("nan")
+    return (share(np.count_nonzero((m | f) & keep)), share(np.count_nonzero(m & keep)),
+            share(np.count_nonzero(f & keep)))
 
 
 def appearance_score(tri: np.ndarray, obs_bits: np.ndarray, tri_bits: np.ndarray,

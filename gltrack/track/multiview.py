@@ -57,9 +57,12 @@ Score of a frame: the summed silhouette XOR count of the estimate (one extra eva
 ``FrameEstimate.evaluations``). One more engine call per frame, not counted as an evaluation
 (it does not steer the filter), gives ``info["iou"]``: the per-camera silhouette IoU of the
 estimate against the frame's foreground over the unblocked pixels, counted at ``iou_tile``
-pixels (:meth:`SilhouetteLikelihood.silhouette_iou`, channel ``model``), a quality figure that
+pixels (:meth:`SilhouetteLikelihood.silhouette_overlap`, channel ``model``), a quality figure that
 needs no ground truth (``gltrack eval`` summarises it; None for a camera where neither model
-nor foreground has a pixel). ``info["quality"]`` (XOR over foreground pixels at the tracking
+nor foreground has a pixel). The same call gives ``info["model_on_fg"]``, the share of the
+model's silhouette on the foreground, and ``info["fg_covered"]``, the share of the foreground
+the model covers: which of the two is low says whether the model sticks out of the masks or the
+masks hold what the model does not explain (None where the model, or the foreground, is empty). ``info["quality"]`` (XOR over foreground pixels at the tracking
 tile, at least the share of the foreground the environment layers removed when that is over
 half: ``info["foreground_kept"]``) is what the runner's loss detection reads.
 """
@@ -520,7 +523,7 @@ class MultiviewTracker(Tracker):
         self.velocity, self.last = x - self.last, x
         e_s, c_a = self.scores(x[None])
         e_s, c_a = float(e_s[0]), None if c_a is None else float(c_a[0])
-        iou = self.likelihood.silhouette_iou(x, self.opt.iou_tile or None)
+        overlap = self.likelihood.silhouette_overlap(x, self.opt.iou_tile or None)
         self.frames_done += 1
         k = self.opt.appearance_refine
         if self.appearance is not None and k and self.frames_done % k == 0:
@@ -534,7 +537,8 @@ class MultiviewTracker(Tracker):
             quality = max(quality, 1.0 - kept)
         info = {"e_s": e_s, "foreground_px": self.area, "foreground_kept": round(kept, 4),
                 "quality": quality,
-                "iou": [None if not np.isfinite(v) else round(float(v), 4) for v in iou],
+                **{key: [None if not np.isfinite(v) else round(float(v), 4) for v in row]
+                   for key, row in zip(("iou", "model_on_fg", "fg_covered"), overlap)},
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if c_a is not None:
             info["c_a"] = c_a
