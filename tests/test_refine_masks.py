@@ -197,3 +197,82 @@ def test_refine_masks_background_takes_the_model_out_of_the_temporal_background(
     ds = Dataset.open(path)
     bad = np.array([[_iou(ds.mask(f, c), ds.gtmask(f, c)) for c in range(4)] for f in range(T)])
     assert bad.mean() < new.mean() - 0.15, (new, bad)
+
+
+@pytest.fixture(scope="module")
+def spilt(tmp_path_factory):
+    """(dataset path, body, poses, true masks): a subject walking 1.2 m across the view over 10
+    frames, its masks the true silhouettes plus a band of static background beside the body
+    (what GrabCut takes in where the background has the subject's colours)."""
+    T = 10
+    body = BodyModel.build()
+    d = body.dofs
+    P = np.repeat(d.zero(body.skeleton)[None], T, axis=0)
+    P[:, 1] = 0.98
+    P[:, 0] = np.linspace(-0.6, 0.6, T)
+    P[:, d.index("l_shoulder_rz")] = np.linspace(-1.2, -0.4, T)
+    cams = ring_cameras((0.0, 0.9, 0.0), **dict(RING, radius=3.5))
+    path = render_dataset(tmp_path_factory.mktemp("spill") / "ds", body, P, cams, 15.0,
+                          np.random.default_rng(7))
+    ds = Dataset.open(path)
+    truth = {}
+    for f in range(T):
+        for c, cam in enumerate(ds.cameras):
+            gt = ds.gtmask(f, c)
+            spill = np.roll(gt, 6, axis=1) & ~gt  # 6 px of background on one side
+            truth[f, c] = gt
+            cv2.imwrite(str(path / f"{cam.name}_mask" / f"{f:06d}.png"),
+                        np.where(gt | spill, 255, 0).astype(np.uint8))
+    return path, body, P, truth
+
+
+def test_refine_masks_scene_drops_static_background_beside_the_body(spilt, tmp_path):
+    """``--method scene``: the band of static background goes, the subject stays, nothing is
+    added. A result 1 m off the subject removes the band too and keeps most of the subject (its
+    pixels differ from their temporal background: only scene pixels are ever removed), but
+    not the subject's pixels that happen to match the background there, which the true model
+    keeps."""
+    path, body, P, truth = spilt
+    T = len(P)
+    ds = Dataset.open(path)
+    seq = {k: ds.mask(*k) for k in truth}
+    before = np.mean([_iou(seq[k], truth[k]) for k in truth])
+    assert before < 0.85
+    kept_by = {}
+    for tag, poses in (("true", P), ("off", P + np.eye(P.shape[1])[2] * 1.0)):
+        res = _result(path, body, poses, tmp_path / tag)
+        assert main(["-q", "refine-masks", str(path), str(res), "--method", "scene"]) == 0
+        ds = Dataset.open(path)
+        new = {k: ds.mask(*k) for k in truth}
+        after = np.mean([_iou(new[k], truth[k]) for k in truth])
+        kept = sum(np.count_nonzero(new[k] & truth[k]) for k in truth) / \
+            sum(np.count_nonzero(seq[k] & truth[k]) for k in truth)
+        kept_by[tag] = kept
+        assert after > before + 0.08 and kept > (0.97 if tag == "true" else 0.85), \
+            (tag, before, after, kept)
+        assert all(not np.any(new[k] & ~seq[k]) for k in truth), tag
+        rec = json.loads((path / "meta.json").read_text())["masks"]["refined"]
+        assert rec["method"] == "scene" and rec["frames"] == T
+    assert kept_by["off"] < kept_by["true"] - 0.02, kept_by
+
+
+def test_scene_pixels_are_the_static_background_not_the_moving_subject(spilt):
+    """:meth:`SequenceForeground.scene_pixels`: far from the walking subject nearly every pixel
+    is scene, on it almost none (it differs from its background); with the frames' true masks
+    left out of the statistics the background is known everywhere the subject left."""
+    from gltrack.observe.foreground import SequenceForeground, dilate_mask
+
+    path, body, P, truth = spilt
+    ds = Dataset.open(path)
+    T = len(P)
+    est = SequenceForeground([[ds.colour(f, c) for f in range(T)] for c in range(4)],
+                             ds.cameras)
+    for c in range(4):
+        masks = np.stack([truth[f, c] for f in range(T)])
+        scene = est.scene_pixels(c, masks)
+        assert scene.shape == masks.shape
+        far = ~np.stack([dilate_mask(m, 8) for m in masks])
+        assert scene[far].mean() > 0.95 and scene[masks].mean() < 0.25, \
+            (c, scene[far].mean(), scene[masks].mean())
+    with pytest.raises(ValueError, match="frames"):
+        est.scene_pixels(0, masks[:3])

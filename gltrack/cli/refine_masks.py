@@ -19,7 +19,10 @@ def add_arguments(p):
                         "silhouettes left out of the background statistics "
                         "(removes the subject's ghost, finds parts that never move); grabcut: "
                         "GrabCut per frame seeded by the model, the sequence's mask kept within "
-                        "--reach")
+                        "--reach; scene: drop the mask's pixels that show the static scene "
+                        "(they match their temporal background, never the subject's ghost) "
+                        "away from the model's silhouette (removes background that GrabCut took "
+                        "for the subject by its colours; adds nothing)")
     p.add_argument("--band", type=float, default=BAND_M, metavar="M",
                    help="metres around the model's silhouette where the colour segmentation "
                         "decides (beyond: background)")

@@ -10,7 +10,12 @@ image. Two ways of using it (``method=``):
   run as in ``ingest``;
 * ``"grabcut"``: per frame and camera, :func:`gltrack.observe.model_masks.refine_with_model`
   combines the silhouette with the mask the dataset has (GrabCut seeded by the model, the
-  sequence mask kept within reach; see that module for why both).
+  sequence mask kept within reach; see that module for why both);
+* ``"scene"``: the sequence mask without the pixels that show the static scene (they match
+  their temporal background, which was never the subject's ghost) farther than ``core_m`` from
+  the model's silhouette (:func:`_scene_pass`): it only removes, never adds, and removes only
+  what the background test calls scene, so a model that is off the person cannot paint itself
+  into the masks.
 
 The refined masks replace ``camN_mask/``; the masks
 they replaced are moved to ``camN_mask_sequence/`` the first time (a later refinement keeps that
@@ -35,6 +40,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gltrack.observe.background import clean_mask
 from gltrack.observe.foreground import dilate_mask
 from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, model_silhouette,
                                          refine_with_model)
@@ -153,8 +159,59 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
             yield f, j, _read_mask(source[k], f), m
 
 
+def _scene_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
+    """The sequence mask without the static scene beside the model.
+
+    The sequence foreground's GrabCut fills the subject's still torso by colour and, with it,
+    background of the subject's colours next to it (a skin-coloured door or cupboard). Such a
+    pixel shows the static scene: it matches its temporal background (observed, with the
+    sequence masks left out of the statistics), and the ghost test never fired there
+    (:meth:`~gltrack.observe.foreground.SequenceForeground.scene_pixels`). A still part of the
+    subject matches that too, so the model's silhouette, widened by ``core_m`` (its fitting
+    error at a limb's edge), keeps what it covers; scene pixels farther from it are dropped.
+    Nothing is added: a moving part the model missed (no scene pixel) stays, and frames the
+    result does not hold keep their sequence mask. ``band_m`` and ``reach_m`` are not used.
+    """
+    from tqdm import tqdm
+
+    from gltrack.observe.foreground import ForegroundParams, SequenceForeground
+
+    rec = ds.meta.get("masks") if isinstance(ds.meta.get("masks"), dict) else {}
+    params = ForegroundParams(**{k: rec[k] for k in ("work_size",) if k in rec})
+
+    def feed(k):
+        for f in range(ds.frames):
+            yield ds.colour(f, k)
+
+    est = SequenceForeground([feed(k) for k in cams], [ds.cameras[k] for k in cams], params)
+    for j, k in enumerate(cams):
+        cam, work = ds.cameras[k], est.cameras[j]
+        size = (work.width, work.height)
+        seq = np.stack([cv2.resize(_read_mask(source[k], f).astype(np.uint8), size,
+                                   interpolation=cv2.INTER_NEAREST) > 0
+                        for f in range(ds.frames)])
+        scene = est.scene_pixels(j, seq)
+        for f in tqdm(range(ds.frames), desc=f"scene {cam.name}", unit="frame",
+                      disable=not progress):
+            mask = _read_mask(source[k], f)
+            sil, depth = posed.silhouette(f, j)
+            if sil is None:
+                yield f, j, mask, mask
+                continue
+            here = cv2.resize(scene[f].astype(np.uint8), (cam.width, cam.height),
+                              interpolation=cv2.INTER_NEAREST) > 0
+            keep = dilate_mask(sil, _pixels(cam, core_m, depth))
+            out = mask & ~(here & ~keep)
+            # the scene test is per pixel: the few pixels of a removed region that missed it
+            # (noise) would stay as specks; an opening and the foreground's smallest component
+            # take them, away from the model (a thin limb it covers stays), adding nothing
+            opened = clean_mask(out, params.morph_size, max(int(params.min_area * out.size), 1),
+                                close_size=1)
+            yield f, j, mask, out & (opened | keep)
+
+
 #: the ways of refining (``method=``)
-METHODS = ("background", "grabcut")
+METHODS = ("background", "grabcut", "scene")
 
 
 def refine_dataset_masks(dataset, result, *, method: str = "grabcut", band_m: float = BAND_M,
@@ -227,7 +284,8 @@ def refine_dataset_masks(dataset, result, *, method: str = "grabcut", band_m: fl
             kept = path / f"{name}{SEQUENCE_SUFFIX}"
             source[k] = kept if kept.is_dir() else path / f"{name}_mask"
         posed = _Posed(ds, cams, body, by_frame)
-        refine = _background_pass if method == "background" else _grabcut_pass
+        refine = {"background": _background_pass, "grabcut": _grabcut_pass,
+                  "scene": _scene_pass}[method]
         for f, j, seq, out in refine(ds, cams, source, posed, band_m=band_m, reach_m=reach_m,
                                      core_m=core_m, progress=progress):
             k = cams[j]

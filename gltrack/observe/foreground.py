@@ -643,6 +643,32 @@ class SequenceForeground:
             out[t][m] = near.mean(axis=0) >= p.ghost_recurrence
         return out
 
+    def scene_pixels(self, c, masks):
+        """Where camera c shows the static scene: (T, h, w) bool.
+
+        A pixel is scene in frame t when its background is known (observed in enough frames
+        with ``masks`` left out of the statistics, not inpainted), frame t matches that
+        background (it is no candidate of the background test, shadows included) and the ghost
+        test never fired there (the background is not a subject who stood still, seen away in
+        other frames). A part of the subject that never moves matches this too: the caller must
+        keep what it knows to be the subject (``gltrack refine-masks --method scene`` keeps the
+        tracked model's silhouette).
+
+        Parameters
+        ----------
+        c : int, camera index
+        masks : (T, h, w) bool, the sequence's foreground (left out of the background
+            statistics, dilated by ``exclude_margin``)
+        """
+        if masks.shape[0] != self.T:
+            raise ValueError(f"masks of camera {c} have {masks.shape[0]} frames, the sequence "
+                             f"{self.T}")
+        bg, spread, known = self.background(c, self._dilate_stack(masks))
+        var = self.noise_var(c, bgr_to_yuv(bg), spread, known)
+        _, raw, _ = self.candidates(c, bg, var, shadows=True)
+        ghost = self.ghosts(c, raw, var).any(axis=0)
+        return ~raw & (known & ~ghost)[None]
+
     # ------------------------------------------------------------------------ cue 2: the hull
     def hull(self, masks_t, strong_t=None):
         """Main component of the visual hull of one frame's masks and its reprojections.
