@@ -297,6 +297,10 @@ def test_eval_reports_which_side_of_the_silhouette_loses(tmp_path, capsys):
     assert "mean IoU" in out and "model on fg" not in out
     q = json.loads(j.read_text())["quality"]
     assert q["model_on_fg_mean"] == [None, None] and q["fg_covered_mean"] == [None, None]
+    # --iou-now needs a body to pose and a dataset folder
+    assert main(["eval", str(res2), str(ds2), "--iou-now"]) == 2
+    err = capsys.readouterr().err
+    assert "--iou-now" in err and len(err.strip().splitlines()) == 1
 
 
 def test_joint_jitter_of_known_trajectories():

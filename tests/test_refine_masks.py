@@ -276,3 +276,43 @@ def test_scene_pixels_are_the_static_background_not_the_moving_subject(spilt):
             (c, scene[far].mean(), scene[masks].mean())
     with pytest.raises(ValueError, match="frames"):
         est.scene_pixels(0, masks[:3])
+
+
+def test_eval_iou_now_scores_against_the_refined_masks(spilt, tmp_path, capsys):
+    """``gltrack eval R DS --iou-now`` recomputes the silhouette IoU against the masks as they
+    are now: on the spilt masks it is what the masks' own overlap with the true silhouettes
+    says, after ``refine-masks --method scene`` it is higher; a dataset whose masks alone
+    changed is accepted with --iou-now and refused without it (pointing at --iou-now)."""
+    import shutil
+
+    from gltrack.data.provenance import check_same_dataset, dataset_fingerprint
+
+    src, body, P, truth = spilt
+    path = tmp_path / "ds"
+    shutil.copytree(src, path, ignore=shutil.ignore_patterns("*_mask_sequence"))
+    for (f, c), gt in truth.items():  # the spilt masks again (an earlier test refined src's)
+        name = Dataset.open(path).cameras[c].name
+        spill = np.roll(gt, 6, axis=1) & ~gt
+        cv2.imwrite(str(path / f"{name}_mask" / f"{f:06d}.png"),
+                    np.where(gt | spill, 255, 0).astype(np.uint8))
+    run = {"dataset": dataset_fingerprint(path)}
+    res = _result(path, body, P, tmp_path / "res")
+    ds = Dataset.open(path)
+    want = np.mean([[_iou(ds.mask(f, c), truth[f, c]) for c in range(4)] for f in range(len(P))],
+                   axis=0)
+    j = tmp_path / "q.json"
+    assert main(["-q", "eval", str(res), str(path), "--iou-now", "--json", str(j)]) == 0
+    out = capsys.readouterr().out
+    assert "recomputed against the dataset's masks" in out and "fg covered" in out
+    q = json.loads(j.read_text())["quality"]
+    np.testing.assert_allclose(q["iou_mean"], want, atol=0.03)
+    # the true pose's silhouette lies on the masks (edge pixels of 128 x 96 images aside)
+    assert min(q["model_on_fg_mean"]) > 0.9
+    assert main(["-q", "refine-masks", str(path), str(res), "--method", "scene"]) == 0
+    assert main(["-q", "eval", str(res), str(path), "--iou-now", "--json", str(j)]) == 0
+    q2 = json.loads(j.read_text())["quality"]
+    assert min(np.subtract(q2["iou_mean"], q["iou_mean"])) > 0.05, (q, q2)
+    # the fingerprint check: only the masks (and meta.json's record of them) changed
+    check_same_dataset(run, path, "res", masks_may_differ=True)
+    with pytest.raises(ValueError, match="--iou-now"):
+        check_same_dataset(run, path, "res")

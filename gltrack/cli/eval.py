@@ -25,6 +25,11 @@ def add_arguments(p):
                    help="write the metrics (summary and per-frame) as JSON")
     p.add_argument("--csv", metavar="FILE", default=None, help="write the per-frame errors as CSV")
     p.add_argument("--plot", metavar="FILE", default=None, help="plot errors over time (PNG)")
+    p.add_argument("--iou-now", action="store_true",
+                   help="recompute the per-camera silhouette IoU and shares against DATASET's "
+                        "masks as they are now (e.g. after gltrack refine-masks), at full "
+                        "resolution, from the result's body, instead of the values recorded "
+                        "while tracking (a dataset whose masks changed since is accepted)")
     p.add_argument("--force", action="store_true",
                    help="score even when DATASET is not the one RESULT/run.json records (its "
                         "fingerprint differs) or, for results without that record, when the "
@@ -101,6 +106,30 @@ def _outputs(args):
         raise UsageError(f"--plot {args.plot}: use a .png, .pdf or .svg file name")
 
 
+def _infos_now(args, result, recorded, infos):
+    """``infos`` with the silhouette figures recomputed against the dataset's current masks
+    (:func:`gltrack.eval.quality.silhouette_overlaps`)."""
+    import logging
+
+    from gltrack.data.dataset import Dataset
+    from gltrack.eval.quality import silhouette_overlaps
+    from .common import UsageError
+
+    if not Path(args.dataset).is_dir():
+        raise UsageError(f"--iou-now needs a dataset folder with masks, not {args.dataset}")
+    if recorded is None:
+        raise UsageError(f"--iou-now: {args.result} records no body.json to pose")
+    with Dataset.open(args.dataset) as ds:
+        if not any(c.kind == "colour" for c in ds.cameras):
+            raise UsageError(f"--iou-now: {args.dataset} has no colour cameras")
+        quiet = logging.getLogger().getEffectiveLevel() > logging.WARNING
+        now = silhouette_overlaps(result, ds, recorded[0], progress=not quiet)
+    merged = {f: dict(v) for f, v in infos.items()}
+    for f, v in now.items():
+        merged.setdefault(f, {}).update(v)
+    return merged
+
+
 def groundtruth_in_result_frame(gt, result):
     """A dataset's ground truth (internal frame, like its cameras) in the frame of ``result``'s
     joints and markers (the user's, :mod:`gltrack.data.results`): eval compares like with
@@ -147,7 +176,8 @@ def run(args):
     else:
         ds = Dataset.open(ds_path)
         check_result_world(result, ds, args.result)  # the more specific message first
-        check_same_dataset(run, ds, args.result, force=args.force)
+        check_same_dataset(run, ds, args.result, force=args.force,
+                           masks_may_differ=args.iou_now)
         n_truth = ds.frames
         gt, fps = groundtruth_in_result_frame(ds.groundtruth(), result), ds.fps
         cam_names = [c.name for c in ds.cameras if c.kind == "colour"]
@@ -155,7 +185,11 @@ def run(args):
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         ds.close()
     cover = coverage(result, run, n_truth, args.result, args.force, dataset=args.dataset)
-    quality = quality_summary(result, frame_infos(args.result), cam_names)
+    infos = frame_infos(args.result)
+    if args.iou_now:
+        infos = _infos_now(args, result, recorded, infos)
+    quality = quality_summary(result, infos, cam_names)
+    quality["iou_source"] = "recomputed" if args.iou_now else "recorded"
     if gt is None:
         if args.plot:
             raise UsageError(f"--plot: {ds_path} has no groundtruth.npz, no errors to plot "

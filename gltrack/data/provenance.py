@@ -238,7 +238,8 @@ def recorded_fps(run: dict):
     return fps if fps > 0 else None
 
 
-def check_same_dataset(run: dict, ds, where: str, force: bool = False):
+def check_same_dataset(run: dict, ds, where: str, force: bool = False,
+                       masks_may_differ: bool = False):
     """Refuse a dataset that is not the one a result was tracked on (``eval``, ``render``).
 
     Parameters
@@ -248,6 +249,9 @@ def check_same_dataset(run: dict, ds, where: str, force: bool = False):
     ds : gltrack.data.dataset.Dataset, or the path of a dataset folder
     where : str, the result's path, for the message
     force : bool, only log the difference
+    masks_may_differ : bool, accept a dataset that differs only in its foreground masks
+        (``camN_mask/``, ``camN_mask_sequence/``) and in ``meta.json``, which records them:
+        what ``gltrack refine-masks`` changes (``eval --iou-now`` scores against them)
 
     Raises
     ------
@@ -262,8 +266,17 @@ def check_same_dataset(run: dict, ds, where: str, force: bool = False):
     if mine["fingerprint"] == rec["fingerprint"]:
         return
     diff = fingerprint_difference(rec, mine)
+    a, b = rec.get("parts") or {}, mine.get("parts") or {}
+    masks_only = bool(a and b) and not [
+        k for k in set(a) | set(b) if a.get(k) != b.get(k) and k != "meta.json"
+        and not k.endswith(("_mask", "_mask_sequence"))]
+    if masks_only and masks_may_differ:
+        log.info("%s: %s's masks differ from those it was tracked on (%s)", where, path, diff)
+        return
     msg = (f"{where}: was tracked on {rec.get('path')} (run.json field 'dataset.fingerprint'), "
-           f"{path} is another dataset ({diff})")
+           f"{path} is another dataset ({diff}"
+           + ("; only its masks changed: gltrack eval --iou-now scores against them" if masks_only
+              else "") + ")")
     if force:
         log.warning("%s; going on (--force)", msg)
         return
