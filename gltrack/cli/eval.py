@@ -6,7 +6,9 @@ With ground truth the printed table and the JSON keys are those of
 :func:`gltrack.eval.metrics.evaluate`, plus ``quality``. Without (a recorded take, which has no
 ``groundtruth.npz``) only the quality is reported: JSON ``{"frames", "quality", "per_frame"}``
 with the per-frame IoU and jitter columns (also what ``--csv`` writes); ``--plot`` needs
-ground truth."""
+ground truth. ``quality.iou_source`` says whether the silhouette figures are those recorded while
+tracking (``"recorded"``) or computed again against the dataset's masks (``"recomputed"``,
+``--iou-now``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -108,11 +110,11 @@ def _outputs(args):
 
 def _infos_now(args, result, recorded, infos):
     """``infos`` with the silhouette figures recomputed against the dataset's current masks
-    (:func:`gltrack.eval.quality.silhouette_overlaps`)."""
+    (:func:`gltrack.data.refine_masks.silhouette_overlaps`)."""
     import logging
 
     from gltrack.data.dataset import Dataset
-    from gltrack.eval.quality import silhouette_overlaps
+    from gltrack.data.refine_masks import silhouette_overlaps
     from .common import UsageError
 
     if not Path(args.dataset).is_dir():

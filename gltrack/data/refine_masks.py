@@ -214,6 +214,53 @@ def _scene_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
 METHODS = ("background", "grabcut", "scene")
 
 
+def silhouette_overlaps(result, dataset, body, progress: bool = False) -> dict:
+    """Per-camera silhouette IoU and shares of a result against a dataset's masks as they are
+    now, at full resolution (``gltrack eval --iou-now``): what the multi-view trackers record
+    while tracking (``info["iou"]``, ``info["model_on_fg"]``, ``info["fg_covered"]``),
+    computed again, e.g. after :func:`refine_dataset_masks` changed the masks.
+
+    The body is posed at each row's ``params`` and its silhouette projected through each colour
+    camera's lens (:func:`gltrack.observe.model_masks.model_silhouette`), then counted against
+    the frame's mask (:func:`gltrack.render.reference.silhouette_overlap`). Unlike the tracker's
+    figure no environment layer blocks any pixel, and the count is at the camera's resolution,
+    not at ``iou_tile``.
+
+    Parameters
+    ----------
+    result : dict from :func:`gltrack.data.results.load_results` (``params`` (N, D) in the
+        dataset's frame, ``frame`` (N,))
+    dataset : gltrack.data.dataset.Dataset
+    body : gltrack.body.model.BodyModel, the body the result was tracked with
+    progress : bool, show a progress bar
+
+    Returns
+    -------
+    dict frame -> {"iou", "model_on_fg", "fg_covered"}: lists over the dataset's colour cameras
+    (None where the camera has no mask for the frame, or a denominator is empty), the
+    ``infos`` :func:`gltrack.eval.quality.quality_summary` reads
+    """
+    from tqdm import tqdm
+
+    from gltrack.render.reference import silhouette_overlap
+
+    params = np.asarray(result["params"], dtype=np.float64)
+    frames = np.asarray(result.get("frame", np.arange(len(params))), dtype=np.int64)
+    cams = [k for k, c in enumerate(dataset.cameras) if c.kind == "colour"]
+    posed = _Posed(dataset, cams, body, dict(zip(frames.tolist(), params)))
+    keys = ("iou", "model_on_fg", "fg_covered")
+    out = {}
+    for f in tqdm(frames.tolist(), desc="silhouette IoU", unit="frame", disable=not progress):
+        rows = []
+        for j, k in enumerate(cams):
+            mask = dataset.mask(f, k)
+            rows.append((np.nan,) * 3 if mask is None
+                        else silhouette_overlap(posed.silhouette(f, j)[0], mask))
+        out[f] = {key: [None if not np.isfinite(r[i]) else round(float(r[i]), 4) for r in rows]
+                  for i, key in enumerate(keys)}
+    return out
+
+
 def refine_dataset_masks(dataset, result, *, method: str = "grabcut", band_m: float = BAND_M,
                          reach_m: float = REACH_M, core_m: float = CORE_M, frames=None,
                          progress: bool = False) -> dict:

@@ -164,57 +164,6 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
     }
 
 
-def silhouette_overlaps(result, dataset, body, progress: bool = False) -> dict:
-    """Per-camera silhouette IoU and shares of a result against a dataset's masks as they are
-    now, at full resolution: what the multi-view trackers record while tracking
-    (``info["iou"]``, ``info["model_on_fg"]``, ``info["fg_covered"]``), computed again, e.g.
-    after ``gltrack refine-masks`` changed the masks.
-
-    The body is posed at each row's ``params`` and its silhouette projected through each colour
-    camera's lens (:func:`gltrack.observe.model_masks.model_silhouette`), then counted against the
-    frame's mask (:func:`gltrack.render.reference.silhouette_overlap`). Unlike the tracker's
-    figure no environment layer blocks any pixel, and the count is at the camera's resolution,
-    not at ``iou_tile``.
-
-    Parameters
-    ----------
-    result : dict from :func:`gltrack.data.results.load_results` (``params`` (N, D) in the
-        dataset's frame, ``frame`` (N,))
-    dataset : gltrack.data.dataset.Dataset
-    body : gltrack.body.model.BodyModel, the body the result was tracked with
-    progress : bool, show a progress bar
-
-    Returns
-    -------
-    dict frame -> {"iou", "model_on_fg", "fg_covered"}: lists over the dataset's colour cameras
-    (None where the camera has no mask for the frame, or neither model nor mask has a pixel),
-    the ``infos`` :func:`quality_summary` reads
-    """
-    from tqdm import tqdm
-
-    from gltrack.observe.model_masks import model_silhouette
-    from gltrack.render.reference import silhouette_overlap, skin_vertices
-
-    params = np.asarray(result["params"], dtype=np.float64)
-    frames = np.asarray(result.get("frame", np.arange(len(params))), dtype=np.int64)
-    cams = [k for k, c in enumerate(dataset.cameras) if c.kind == "colour"]
-    out = {}
-    for f, x in tqdm(list(zip(frames.tolist(), params)), desc="silhouette IoU", unit="frame",
-                     disable=not progress):
-        verts = skin_vertices(body.mesh, body.skinning(x[None]))[0]
-        rows = []
-        for k in cams:
-            mask = dataset.mask(f, k)
-            if mask is None:
-                rows.append((float("nan"),) * 3)
-                continue
-            sil = model_silhouette(dataset.cameras[k], verts, body.mesh.faces)
-            rows.append(silhouette_overlap(sil, mask))
-        out[f] = {key: [None if not np.isfinite(r[i]) else round(float(r[i]), 4) for r in rows]
-                  for i, key in enumerate(("iou", "model_on_fg", "fg_covered"))}
-    return out
-
-
 def quality_table(q: dict) -> str:
     """The summary of :func:`quality_summary` as text: one line per camera, then the jitter."""
     lines = []
