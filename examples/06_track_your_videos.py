@@ -1,7 +1,7 @@
 """06 - Track a real recording: calibrated videos in, a tracked motion, an overlay and exports out.
 
-The same five commands a user types (``gltrack ingest``, ``track``, ``eval``, ``render``,
-``export``), run here through :func:`gltrack.cli.main` on the Pose2Sim take in the reference
+The commands a user types (``gltrack ingest``, ``track``, ``eval``, ``render``,
+``refine-masks``, ``export``), run here through :func:`gltrack.cli.main` on the Pose2Sim take in the reference
 folder (``../shared/video/pose2sim_balancing_4cam``: 4 portrait cameras, 60 fps, one person
 balancing on one leg, a second person in the background). A few frames only, so it runs in a few
 minutes on a laptop CPU:
@@ -13,8 +13,12 @@ minutes on a laptop CPU:
    ``TRACK_FRAMES`` frames;
 3. ``eval``: without ground truth, the per-camera silhouette IoU of the model against the masks
    and the frame-to-frame joint jitter;
-4. ``render``: the model over the real images, 2x2 grid, ``overlay.mp4``;
-5. ``export``: ``poses.trc`` (Pose2Sim/OpenSim axes, metres) and ``poses.bvh``.
+4. ``render``: the model over the real images, 2x2 grid, ``overlay.mp4``, and the model against
+   the masks (``--masks``: green both, red mask only, blue model only), ``masks.mp4``;
+5. ``refine-masks --method scene``: the masks without the static background (a door, a
+   cupboard of skin-like colours) that the sequence's GrabCut took for the person, away from the
+   tracked model; then ``eval --iou-now`` scores the track against the refined masks;
+6. ``export``: ``poses.trc`` (Pose2Sim/OpenSim axes, metres) and ``poses.bvh``.
 
 The reference folder is ``GLTRACK_SHARED`` or ``../shared`` beside the repository; without it the
 example says so and exits successfully (a fresh clone has no ``../shared``).
@@ -59,6 +63,10 @@ def main(out=None):
                    TRACK_FRAMES, "--overwrite"]),
         ("eval", ["eval", str(res), str(ds)]),
         ("render", ["render", str(res), str(ds), "--out", str(out / "overlay.mp4")]),
+        ("render --masks", ["render", str(res), str(ds), "--out", str(out / "masks.mp4"),
+                            "--masks"]),
+        ("refine-masks", ["refine-masks", str(ds), str(res), "--method", "scene"]),
+        ("eval --iou-now", ["eval", str(res), str(ds), "--iou-now"]),
         ("export trc", ["export", str(res), "--format", "trc", "--dataset", str(ds), "--out",
                         str(out / "poses.trc"), "--overwrite"]),
         ("export bvh", ["export", str(res), "--format", "bvh", "--dataset", str(ds), "--out",
@@ -72,8 +80,8 @@ def main(out=None):
         if rc != 0:
             print(f"gltrack {name} failed (exit status {rc})")
             return rc
-    print(f"done: overlay {out / 'overlay.mp4'}, exports {out / 'poses.trc'} and "
-          f"{out / 'poses.bvh'}")
+    print(f"done: overlays {out / 'overlay.mp4'} and {out / 'masks.mp4'}, exports "
+          f"{out / 'poses.trc'} and {out / 'poses.bvh'}")
     return 0
 
 
