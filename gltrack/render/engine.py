@@ -771,16 +771,12 @@ def silhouette_iou(model_px, foreground_px, xor_px):
     foreground are empty: there is nothing to compare, and a camera that sees neither the
     person nor the model is no evidence of a good fit
     """
-    m, f, x = (np.asarray(a, dtype=np.float64) for a in (model_px, foreground_px, xor_px))
-    union = m + f + x
-    inter = np.clip(m + f - x, 0.0, None)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(union > 0, np.clip(inter / np.where(union > 0, union, 1.0), 0.0, 1.0),
-                        np.nan)
+    return silhouette_overlap(model_px, foreground_px, xor_px)[0]
 
 
 def silhouette_overlap(model_px, foreground_px, xor_px):
-    """IoU and its two one-sided shares from the engine's counts (see :func:`silhouette_iou`).
+    """IoU and its two one-sided shares from the engine's counts: ``|M & F| = (M + F - X) / 2``
+    and ``|M | F| = (M + F + X) / 2`` (see :func:`silhouette_iou`).
 
     Parameters
     ----------
@@ -803,7 +799,7 @@ def silhouette_overlap(model_px, foreground_px, xor_px):
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(den > 0, np.clip(inter / np.where(den > 0, den, 1.0), 0.0, 1.0),
                             np.nan)
-    return silhouette_iou(m, f, x), share(m), share(f)
+    return share(0.5 * (m + f + x)), share(m), share(f)
 
 
 def choose_reduction(ctx: moderngl.Context) -> str:

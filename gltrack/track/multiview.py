@@ -62,7 +62,8 @@ needs no ground truth (``gltrack eval`` summarises it; None for a camera where n
 nor foreground has a pixel). The same call gives ``info["model_on_fg"]``, the share of the
 model's silhouette on the foreground, and ``info["fg_covered"]``, the share of the foreground
 the model covers: which of the two is low says whether the model sticks out of the masks or the
-masks hold what the model does not explain (None where the model, or the foreground, is empty). ``info["quality"]`` (XOR over foreground pixels at the tracking
+masks hold what the model does not explain (None where the model, or the foreground, is
+empty). ``info["quality"]`` (XOR over foreground pixels at the tracking
 tile, at least the share of the foreground the environment layers removed when that is over
 half: ``info["foreground_kept"]``) is what the runner's loss detection reads.
 """
