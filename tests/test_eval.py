@@ -164,6 +164,37 @@ def test_joint_subset_and_frame_mapping():
         M.evaluate(res, gt)
 
 
+def test_per_joint_errors_say_where_the_error_is():
+    rng = np.random.default_rng(9)
+    gt = gt_dict(rng)
+    pred = gt["joints"].copy()
+    w = JOINT_NAMES.index("l_wrist")
+    pred[:, w, 0] += np.linspace(0.1, 0.3, N)  # the left wrist 100..300 mm off along x
+    pred[2, JOINT_NAMES.index("r_knee")] = np.nan  # one missing observation
+    m = M.evaluate(result_from(gt, pred), gt)
+    pj = m["per_joint"]
+    assert list(pj) == m["joints"]
+    assert pj["l_wrist"]["mean_mm"] == pytest.approx(200.0)
+    assert pj["l_wrist"]["max_mm"] == pytest.approx(300.0)
+    assert all(v["mean_mm"] == 0.0 for k, v in pj.items() if k != "l_wrist")
+    # the joints' means over the frames average to the mean joint error when nothing is missing
+    pred[2, JOINT_NAMES.index("r_knee")] = gt["joints"][2, JOINT_NAMES.index("r_knee")]
+    m = M.evaluate(result_from(gt, pred), gt)
+    assert np.mean([v["mean_mm"] for v in m["per_joint"].values()]) == \
+        pytest.approx(m["mean_joint_error_mm"])
+    table = report.summary_table(m)
+    assert "(worst: l_wrist 200)" in table and " r_ankle 0" in table
+    assert all(len(line) <= 96 for line in table.splitlines() if line.startswith("  "))
+    assert json.loads(json.dumps(report.to_jsonable(m)))["per_joint"]["l_wrist"]["max_mm"] == \
+        pytest.approx(300.0)
+
+
+def test_per_joint_lines_without_a_value():
+    lines = report.per_joint_lines({"a": {"mean_mm": float("nan"), "max_mm": float("nan")},
+                                    "b": {"mean_mm": 12.4, "max_mm": 20.0}})
+    assert lines[0].endswith("(worst: b 12):") and lines[1] == "  a n/a b 12"
+
+
 def test_reports(tmp_path):
     rng = np.random.default_rng(7)
     gt = gt_dict(rng)
@@ -336,3 +367,12 @@ def test_marker_thresholds_are_inclusive():
     gt[0, 1] = np.nan  # an invisible marker is not counted at all
     e = M.marker_errors(pred, gt)
     assert e["visible"][0] == 3 and e["frac_failed"][0] == 0.0
+
+
+def test_bench_rows_carry_the_per_joint_means():
+    from gltrack.bench.depth import by_joint
+
+    m = {"per_joint": {"pelvis": {"mean_mm": 12.345, "max_mm": 20.0},
+                       "l_wrist": {"mean_mm": float("nan"), "max_mm": float("nan")}}}
+    assert by_joint(m) == {"pelvis": 12.3, "l_wrist": None}
+    assert json.loads(json.dumps(by_joint(m))) == {"pelvis": 12.3, "l_wrist": None}

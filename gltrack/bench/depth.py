@@ -121,9 +121,18 @@ def _run(ds, method, opts, out, ctx, hooks=(), protocol=ORACLE, init=None):
         "marker_mean_m", "marker_max_m", "frac_markers_tracked", "frac_markers_failed",
         "mean_joint_error_mm")}
     row.update(fps=float(timing.get("fps") or frames / max(wall, 1e-9)),
-               evaluations_per_frame=float(timing["evaluations"]) / max(frames, 1), frames=frames)
+               evaluations_per_frame=float(timing["evaluations"]) / max(frames, 1), frames=frames,
+               joint_error_by_joint_mm=by_joint(m))
     row.update(engine_use(timing))
     return row, res, gt
+
+
+def by_joint(metrics: dict) -> dict:
+    """{joint: mean error over the frames, mm, one decimal} of an
+    :func:`gltrack.eval.metrics.evaluate` result (None where a joint was never seen): which
+    joints a run's mean error comes from."""
+    return {k: None if not np.isfinite(v["mean_mm"]) else round(float(v["mean_mm"]), 1)
+            for k, v in metrics["per_joint"].items()}
 
 
 def engine_use(timing: dict) -> dict:

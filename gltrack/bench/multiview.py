@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from . import machine_name, shared_dir
-from .depth import WRONG_START_RAD, engine_use, settled_frames
+from .depth import WRONG_START_RAD, by_joint, engine_use, settled_frames
 from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
@@ -199,6 +199,7 @@ def _run(ds_path, method, options, out, preset, start_pose, ctx, seed,
     ds.close()
     n = max(int(timing.get("frames", 0)), 1)
     return {"mean_joint_error_mm": round(float(m["mean_joint_error_mm"]), 1),
+            "joint_error_by_joint_mm": by_joint(m),
             "max_frame_error_mm": round(float(np.nanmax(m["per_frame"]["joint_error_mm"])), 1),
             "joint_error_mm": [round(float(e), 1) for e in m["per_frame"]["joint_error_mm"]],
             "evaluations_per_frame": round(int(timing.get("evaluations", 0)) / n),

@@ -47,7 +47,9 @@ def summary_table(metrics):
     width = max(len(r[0]) for r in rows)
     lines = [f"{name:<{width}}  {value:>10}" for name, value in rows]
     extra = []
-    if "joints" in metrics:
+    if metrics.get("per_joint"):  # names the joints scored, with their errors
+        extra.extend(per_joint_lines(metrics["per_joint"]))
+    elif "joints" in metrics:
         extra.append(f"joints scored: {len(metrics['joints'])} ({', '.join(metrics['joints'])})")
     if metrics.get("marker_source") == "joints":
         extra.append("marker errors use the scored joints (no markers on one side)")
@@ -61,6 +63,27 @@ def summary_table(metrics):
                          f"{e['max_bone_mm']:.0f} mm max ({e['worst_bone']}), height "
                          f"{e['height_mm']:+.0f} mm")
     return "\n".join(lines + extra)
+
+
+def per_joint_lines(per_joint, width: int = 96) -> list[str]:
+    """The mean error of each joint over the frames, ``name mm`` pairs wrapped at ``width``
+    characters, under a heading that names the worst joint."""
+    items = [(k, v["mean_mm"]) for k, v in per_joint.items()]
+    finite = [(k, v) for k, v in items if v is not None and not math.isnan(v)]
+    head = f"mean error of each of the {len(items)} joints scored [mm]"
+    if finite:
+        worst = max(finite, key=lambda kv: kv[1])
+        head += f" (worst: {worst[0]} {worst[1]:.0f})"
+    lines, line = [head + ":"], " "
+    for k, v in items:
+        cell = f" {k} " + ("n/a" if v is None or math.isnan(v) else f"{v:.0f}")
+        if len(line) + len(cell) > width and line.strip():
+            lines.append(line)
+            line = " "
+        line += cell
+    if line.strip():
+        lines.append(line)
+    return lines
 
 
 def per_frame_columns(metrics):
@@ -108,7 +131,8 @@ def to_jsonable(metrics):
 
 
 def write_json(metrics, path):
-    """Write the metrics (summary keys, ``joints``, ``marker_source``, ``per_frame``, and
+    """Write the metrics (summary keys, ``joints``, ``per_joint``, ``marker_source``,
+    ``per_frame``, and
     ``body`` when the result records one) as JSON."""
     path = Path(path)
     path.write_text(json.dumps(to_jsonable(metrics), indent=1) + "\n")
