@@ -246,8 +246,9 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
     dict
         The summary keys of :data:`SUMMARY_KEYS` (floats; ``frames`` int) plus ``joints`` (the
         names scored), ``per_joint`` ({joint: {"mean_mm", "max_mm"}}: each scored joint's
-        error over the frames, which says where a mean error comes from), ``marker_source`` (``"markers"`` or ``"joints"`` when either side has no
-        markers and the scored joints stand in for them) and ``per_frame``: a dict of (N,) arrays
+        error over the frames, which says where a mean error comes from), ``marker_source``
+        (``"markers"`` or ``"joints"`` when either side has no markers and the scored joints
+        stand in for them) and ``per_frame``: a dict of (N,) arrays
         ``frame``, ``joint_error_mm``, ``mpjpe_mm``, ``pa_mpjpe_mm``, ``marker_mean_m``,
         ``marker_max_m``, ``frac_markers_tracked``, ``frac_markers_failed``.
         ``marker_max_m`` in the summary is the mean over frames of the per-frame maximum, as
@@ -272,7 +273,7 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
     pred, gt = pj[:, ip], gj[frame][:, ig]
 
     per = {"frame": frame, "joint_error_mm": 1000.0 * mean_joint_error(pred, gt)}
-    by_joint = 1000.0 * point_distances(pred, gt)  # (N, J) mm
+    dist = 1000.0 * point_distances(pred, gt)  # (N, J) mm
     root = names.index(ROOT_JOINT) if ROOT_JOINT in names else None
     if root is None:
         log.warning("no %s joint: MPJPE is relative to the joint centroid", ROOT_JOINT)
@@ -315,9 +316,9 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
         if tot else float("nan"),
         "frames": int(n),
         "joints": names,
-        "per_joint": {name: {"mean_mm": _finite_mean(by_joint[:, j]),
-                             "max_mm": float(np.nanmax(by_joint[:, j]))
-                             if np.isfinite(by_joint[:, j]).any() else float("nan")}
+        "per_joint": {name: {"mean_mm": _finite_mean(dist[:, j]),
+                             "max_mm": float(np.nanmax(dist[:, j]))
+                             if np.isfinite(dist[:, j]).any() else float("nan")}
                       for j, name in enumerate(names)},
         "marker_source": source,
         "per_frame": per,

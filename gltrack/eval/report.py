@@ -132,8 +132,7 @@ def to_jsonable(metrics):
 
 def write_json(metrics, path):
     """Write the metrics (summary keys, ``joints``, ``per_joint``, ``marker_source``,
-    ``per_frame``, and
-    ``body`` when the result records one) as JSON."""
+    ``per_frame``, and ``body`` when the result records one) as JSON."""
     path = Path(path)
     path.write_text(json.dumps(to_jsonable(metrics), indent=1) + "\n")
     return path
