@@ -42,18 +42,13 @@ import numpy as np
 
 from gltrack.observe.background import clean_mask
 from gltrack.observe.foreground import dilate_mask
-from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, model_silhouette,
-                                         refine_with_model)
+from gltrack.observe.model_masks import (BAND_M, CORE_M, REACH_M, metres_to_pixels,
+                                         model_silhouette, refine_with_model)
 
 log = logging.getLogger(__name__)
 
 #: where the sequence's own masks are kept once a refinement has replaced them
 SEQUENCE_SUFFIX = "_mask_sequence"
-
-
-def _pixels(camera, metres: float, depth: float) -> int:
-    """``metres`` at ``depth`` in ``camera``'s pixels (at least 1)."""
-    return max(int(round(camera.fx * metres / max(depth, 0.1))), 1)
 
 
 def _read_mask(folder: Path, f: int) -> np.ndarray:
@@ -108,9 +103,9 @@ def _grabcut_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress)
                 continue
             cam = ds.cameras[k]
             yield f, j, seq, refine_with_model(ds.colour(f, k), seq, sil,
-                                               band_px=_pixels(cam, band_m, depth),
-                                               reach_px=_pixels(cam, reach_m, depth),
-                                               core_px=_pixels(cam, core_m, depth))
+                                               band_px=metres_to_pixels(cam, band_m, depth),
+                                               reach_px=metres_to_pixels(cam, reach_m, depth),
+                                               core_px=metres_to_pixels(cam, core_m, depth))
 
 
 def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
@@ -141,7 +136,7 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
         for j, k in enumerate(cams):
             sil, depth = posed.silhouette(f, j)
             person[j][f] = (_read_mask(source[k], f) if sil is None
-                            else dilate_mask(sil, _pixels(ds.cameras[k], core_m, depth)))
+                            else dilate_mask(sil, metres_to_pixels(ds.cameras[k], core_m, depth)))
 
     def feed(k):
         for f in range(ds.frames):
@@ -200,7 +195,7 @@ def _scene_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progress):
                 continue
             here = cv2.resize(scene[f].astype(np.uint8), (cam.width, cam.height),
                               interpolation=cv2.INTER_NEAREST) > 0
-            keep = dilate_mask(sil, _pixels(cam, core_m, depth))
+            keep = dilate_mask(sil, metres_to_pixels(cam, core_m, depth))
             out = mask & ~(here & ~keep)
             # the scene test is per pixel: the few pixels of a removed region that missed it
             # (noise) would stay as specks; an opening and the foreground's smallest component
