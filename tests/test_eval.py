@@ -376,3 +376,21 @@ def test_bench_rows_carry_the_per_joint_means():
                        "l_wrist": {"mean_mm": float("nan"), "max_mm": float("nan")}}}
     assert by_joint(m) == {"pelvis": 12.3, "l_wrist": None}
     assert json.loads(json.dumps(by_joint(m))) == {"pelvis": 12.3, "l_wrist": None}
+
+
+def test_quality_says_when_the_iou_is_against_masks_the_track_refined():
+    """Frames tracked with ``mask_refine`` record ``masks_refined``: the summary counts them and
+    the table says the IoU is not an independent check (not after ``--iou-now``)."""
+    from gltrack.eval.quality import quality_summary, quality_table
+
+    res = {"joints": np.zeros((4, 1, 3)), "joint_names": ["a"], "frame": np.arange(4)}
+    infos = {f: {"iou": [0.9, 0.8], **({"masks_refined": True} if f >= 1 else {})}
+             for f in range(4)}
+    q = quality_summary(res, infos, ["cam0", "cam1"])
+    assert q["iou_frames_self_refined"] == 3 and q["iou_frames"] == 4
+    text = quality_table(q)
+    assert "3 of them scored against masks the track refined" in text
+    assert "not an independent check" not in quality_table({**q, "iou_source": "recomputed"})
+    plain = quality_summary(res, {f: {"iou": [0.9, 0.8]} for f in range(4)}, ["cam0", "cam1"])
+    assert plain["iou_frames_self_refined"] == 0
+    assert "refined" not in quality_table(plain)

@@ -16,6 +16,7 @@ from gltrack.body.mesh import PARTS
 from gltrack.body.model import BodyModel
 from gltrack.cli import main
 from gltrack.data.dataset import Dataset
+from gltrack.data.refine_masks import SEQUENCE_SUFFIX
 from gltrack.data.results import ResultsWriter
 from gltrack.observe.model_masks import model_silhouette, refine_with_model
 from gltrack.render import reference as ref
@@ -316,3 +317,163 @@ def test_eval_iou_now_scores_against_the_refined_masks(spilt, tmp_path, capsys):
     check_same_dataset(run, path, "res", masks_may_differ=True)
     with pytest.raises(ValueError, match="--iou-now"):
         check_same_dataset(run, path, "res")
+
+
+# -- refined while tracking (``mask_refine``) -------------------------------------------------
+
+def _spoilt_copy(spoilt, tmp_path):
+    """A copy of the ``spoilt`` dataset with its spoilt masks (a refine-masks test above may
+    have refined the fixture's in place, keeping them in ``camN_mask_sequence``)."""
+    import shutil
+
+    path, body, P = spoilt
+    out = tmp_path / "spoilt"
+    shutil.copytree(path, out)
+    for kept in out.glob(f"*{SEQUENCE_SUFFIX}"):
+        mask = out / kept.name.replace(SEQUENCE_SUFFIX, "_mask")
+        shutil.rmtree(mask)
+        kept.rename(mask)
+    return out, body, P
+
+
+def test_observation_refines_its_masks_with_the_model_it_is_given(spoilt, tmp_path):
+    """``MultiviewObservation.model``: each mask is refined with the posed mesh before it is
+    undistorted; without a model it is the dataset's mask; the files are not changed."""
+    from gltrack.observe.multiview import MultiviewObservation
+
+    path, body, P = _spoilt_copy(spoilt, tmp_path)
+    ds = Dataset.open(path)
+    obs = MultiviewObservation(ds, "dataset")
+    _, plain = obs(1)
+    for c in range(4):
+        np.testing.assert_array_equal(plain[c], ds.mask(1, c))  # no lens distortion here
+    obs.model = (ref.skin_vertices(body.mesh, body.skinning(P[1][None]))[0], body.mesh.faces)
+    _, refined = obs(1)
+    obs.model = None
+    for c in range(4):
+        gt = ds.gtmask(1, c)
+        assert _iou(refined[c], gt) > _iou(plain[c], gt) + 0.2, c
+        assert np.count_nonzero(gt & ~refined[c]) < 0.05 * gt.sum(), "the torso is back"
+        np.testing.assert_array_equal(Dataset.open(path).mask(1, c), plain[c])
+    # a model somewhere else gives other masks: the refinement follows the model
+    far = P[1].copy()
+    far[0] += 0.5
+    obs.model = (ref.skin_vertices(body.mesh, body.skinning(far[None]))[0], body.mesh.faces)
+    _, moved = obs(1)
+    assert sum(np.count_nonzero(a != b) for a, b in zip(moved, refined)) > 100
+
+
+def test_grabcut_on_a_shrunk_box_agrees_with_full_resolution():
+    """``max_pixels``: GrabCut on its box scaled down (labels scaled back) finds nearly the
+    mask of the full-resolution run, at a real footage's size (640x480, a figure 300 px tall
+    whose sequence mask lacks the still torso)."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(90, 170, (480, 640, 3)).astype(np.uint8)  # textured grey background
+    person = np.zeros((480, 640), np.uint8)
+    cv2.rectangle(person, (270, 150), (370, 330), 1, -1)    # torso
+    cv2.circle(person, (320, 120), 30, 1, -1)                # head
+    cv2.rectangle(person, (230, 160), (265, 300), 1, -1)     # arms
+    cv2.rectangle(person, (375, 160), (410, 300), 1, -1)
+    cv2.rectangle(person, (280, 335), (360, 440), 1, -1)     # legs
+    person = person.astype(bool)
+    img[person] = (40, 60, 150)
+    img[person] = np.clip(img[person].astype(int) + rng.integers(-15, 16, (person.sum(), 3)),
+                          0, 255).astype(np.uint8)
+    torso = np.zeros_like(person)
+    torso[150:331, 270:371] = True
+    seq = person & ~torso
+    model = np.zeros((480, 640), np.uint8)
+    cv2.rectangle(model, (265, 100), (375, 440), 1, -1)      # a coarse model of the figure
+    model = model.astype(bool)
+    kw = dict(band_px=20, reach_px=80, core_px=4)
+    full = refine_with_model(img, seq, model, **kw)
+    small = refine_with_model(img, seq, model, max_pixels=30000, **kw)
+    assert _iou(full, person) > 0.9 and _iou(small, person) > 0.9
+    assert _iou(small, full) > 0.95, _iou(small, full)
+    assert _iou(seq, person) < 0.7  # the input lacked the torso
+
+
+def test_tracker_refines_the_masks_of_tracked_frames_only(spoilt, ctx, tmp_path):
+    """With ``mask_refine = "grabcut"`` a tracked frame is scored against masks refined with
+    the last estimate; the start scores the dataset's masks, and no model is left set."""
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = _spoilt_copy(spoilt, tmp_path)
+    ds = Dataset.open(path)
+    masks = {}
+    for mode in ("none", "grabcut"):
+        tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, mask_refine=mode),
+                        np.random.default_rng(0))
+        assert tr.refines_masks == (mode == "grabcut")
+        tr.start(0, P[0])
+        est = tr.step(1)
+        assert tr.obs.model is None
+        assert est.info.get("masks_refined", False) == (mode == "grabcut")
+        masks[mode] = [f.copy() for f in tr.likelihood._fgs]
+        tr.close()
+    for c in range(4):
+        gt = ds.gtmask(1, c)
+        assert _iou(masks["grabcut"][c], gt) > _iou(masks["none"][c], gt) + 0.1, c
+
+
+def test_mask_refine_auto_is_for_upper_body_runs_on_sequence_masks():
+    from gltrack.track.multiview import MultiviewOptions, resolve_mask_refine
+
+    seq = {"masks": {"method": "sequence-foreground"}}
+    assert resolve_mask_refine("auto", "upper", seq, "dataset") == "grabcut"
+    assert resolve_mask_refine("auto", "full", seq, "dataset") == "none"
+    assert resolve_mask_refine("auto", "upper", {}, "dataset") == "none"
+    assert resolve_mask_refine("auto", "upper", seq, "background") == "none"
+    assert resolve_mask_refine("grabcut", "full", {}, "background") == "grabcut"
+    assert resolve_mask_refine("none", "upper", seq, "dataset") == "none"
+    assert MultiviewOptions().mask_refine == "auto"
+    with pytest.raises(ValueError, match="mask_refine"):
+        MultiviewOptions(mask_refine="always").validate()
+
+
+def test_wide_dilation_and_erosion_by_distance_match_the_morphology():
+    """From :data:`DISTANCE_RADIUS` on, masks grow and shrink by thresholding the distance
+    transform: the same disk as the morphology but for its rounded rim (under 1 % of the
+    pixels), including a shape that touches the image border."""
+    from gltrack.observe.foreground import DISTANCE_RADIUS, _disk, dilate_mask, erode_mask
+
+    m = np.zeros((360, 640), np.uint8)
+    cv2.rectangle(m, (0, 100), (400, 359), 1, -1)
+    cv2.circle(m, (520, 120), 50, 1, -1)
+    cv2.circle(m, (450, 300), 8, 1, -1)
+    for r in (DISTANCE_RADIUS, 100, 300):
+        grown, shrunk = dilate_mask(m, r), erode_mask(m, r)
+        ref_grown = cv2.dilate(m, _disk(r)).astype(bool)
+        ref_shrunk = cv2.erode(m, _disk(r)).astype(bool)
+        assert np.count_nonzero(grown != ref_grown) < 0.01 * ref_grown.sum(), r
+        assert np.count_nonzero(shrunk != ref_shrunk) <= 0.01 * max(ref_shrunk.sum(), 1), r
+        assert grown[m > 0].all() and not shrunk[m == 0].any()
+    assert dilate_mask(np.zeros((20, 30), bool), 50).sum() == 0
+    assert erode_mask(np.ones((20, 30), bool), 50).all()  # the border counts as inside
+
+
+def test_model_silhouette_drops_triangles_far_outside_the_lens():
+    """Strong barrel distortion folds points far outside the image back into it (k1 = -0.6:
+    a point 1.5 focal lengths off the axis lands on the other side). A triangle out there is
+    not drawn; one inside the image still is, and nothing overflows."""
+    from dataclasses import replace
+
+    cam = ring_cameras((0.0, 0.9, 0.0), n=1, radius=3.0)[0].scaled(256, 192)
+    cam = replace(cam, dist=np.array([-0.6, 0.0, 0.0, 0.0, 0.0]))
+    d = 2.0  # metres in front of the camera
+    faces = np.array([[0, 1, 2]])
+
+    def triangle(x, y):  # normalised image coordinates of its corner, a 0.05-wide triangle
+        local = np.array([[x, y, 1.0], [x + 0.05, y, 1.0], [x, y + 0.05, 1.0]]) * d
+        return (local - cam.t) @ cam.R  # camera -> world
+    from gltrack.observe.model_masks import lens_radius_limit
+
+    assert lens_radius_limit(cam.dist) == pytest.approx(1 / np.sqrt(1.8), abs=1e-3)
+    assert lens_radius_limit(np.zeros(5)) == np.inf
+    far = triangle(1.5, 0.0)
+    assert (np.abs(cam.project(far) - [cam.width / 2, cam.height / 2]) < cam.width).all(), \
+        "the lens folds it into the image"
+    with np.errstate(all="raise"):
+        assert not model_silhouette(cam, far, faces).any()
+        assert model_silhouette(cam, triangle(0.0, 0.0), faces).any()
+        assert not model_silhouette(cam, triangle(1e9, 0.0), faces).any()

@@ -98,6 +98,8 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         ``cameras`` (C,) names; ``iou_mean``, ``iou_min`` (C,) floats (NaN for a camera no frame
         has a value for); ``iou_frames_below`` dict camera -> list of frames with IoU < ``low``;
         ``iou_low`` = ``low``; ``iou_frames`` (frames with an IoU record);
+        ``iou_frames_self_refined`` (frames the tracker scored against masks it refined with
+        its own estimate, ``info["masks_refined"]``);
         ``model_on_fg_mean``, ``fg_covered_mean`` (C,) floats (NaN where not recorded);
         ``jitter_mean_mm``, ``jitter_p95_mm`` (mm/frame^2, NaN with fewer than 3 consecutive
         frames), ``jitter_frames``, ``jitter_joints`` (names); ``per_frame``: ``frame`` (N,),
@@ -152,9 +154,11 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         for key, tab in shares.items():
             per[f"{key}_{name}"] = tab[:, k]
     per["jitter_mm"] = per_jit
+    refined = sum(bool(infos.get(int(f), {}).get("masks_refined")) for f in frames)
     return {
         "cameras": names, "iou_mean": mean, "iou_min": mn, "iou_frames_below": below,
         "iou_low": float(low), "iou_frames": int(recorded.sum()),
+        "iou_frames_self_refined": int(refined),
         **{f"{key}_mean": [col_mean(tab[:, k]) for k in range(C)]
            for key, tab in shares.items()},
         "jitter_mean_mm": float(good.mean()) if good.size else float("nan"),
@@ -188,6 +192,10 @@ def quality_table(q: dict) -> str:
                   "no environment layers)" if q.get("iou_source") == "recomputed"
                   else "frames.jsonl info 'iou', recorded while tracking")
         lines.append(f"silhouette IoU of {q['iou_frames']} frames ({source})")
+        if q.get("iou_frames_self_refined") and q.get("iou_source") != "recomputed":
+            lines.append(f"{q['iou_frames_self_refined']} of them scored against masks the "
+                         "track refined with its own estimate (mask_refine): not an "
+                         "independent check; --iou-now scores against the dataset's masks")
         if shares:
             lines.append("model on fg: share of the model's silhouette on the foreground (low: "
                          "the model sticks out of the masks); fg covered: share of the "
