@@ -165,3 +165,21 @@ def test_an_unusual_estimated_stature_is_flagged():
     msg = unusual_stature(2.28)  # the Pose2Sim take's body before the ghost test
     assert "2.28 m" in msg and "--body" in msg
     assert "1.20 m" in unusual_stature(1.2)
+
+
+def test_an_estimate_outside_usual_statures_falls_back_to_the_default_body(tmp_path, ctx):
+    """``--body estimate`` on a 1.25 m subject (depth, four frames): the estimate is outside
+    :data:`USUAL_STATURE`, so the run tracks with the default adult body of the same preset,
+    and ``body.json``'s record says what was rejected; a usual subject keeps its estimate."""
+    from gltrack.track.bodies import USUAL_STATURE, fallback_body, resolve_body
+
+    body, rec = resolve_body("estimate", _depth(tmp_path / "small", _body(1.25, 1.0)), "38",
+                             ctx=ctx, rng=np.random.default_rng(0))
+    rejected = rec["estimate"]["rejected"]
+    assert rejected["stature_m"] < USUAL_STATURE[0], rejected
+    assert body.skeleton.height() == pytest.approx(1.75) and body.girth_scale == 1.0
+    assert body.dofs.preset == "38" and rec["source"] == "estimate"
+    np.testing.assert_allclose(fallback_body(body).skeleton.offsets, body.skeleton.offsets)
+    body, rec = resolve_body("estimate", _depth(tmp_path / "usual", _body(1.62)), None, ctx=ctx,
+                             rng=np.random.default_rng(0))
+    assert "rejected" not in rec["estimate"] and body.skeleton.height() < 1.72

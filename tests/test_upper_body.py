@@ -70,3 +70,25 @@ def test_hidden_legs_are_out_of_the_silhouette_cost(ctx):
     torso_off = x_up.copy()
     torso_off[0] += 0.3
     assert xor(upper, torso_off, hidden) > xor(upper, x_up, hidden) + 20
+
+
+def test_upper_preset_keeps_the_seated_pelvis_upright():
+    """The seated preset limits the pelvis' tilt (pitch and roll) to 0.5 rad and leaves its
+    turn free; the full body's pelvis is free in every angle. A pose tilted beyond the limit
+    is clipped to it."""
+    up = BodyModel.build(None, "upper").dofs
+    full = BodyModel.build(None, "full").dofs
+    for name in ("pelvis_rx", "pelvis_rz"):
+        i = up.index(name)
+        assert (up.lower[i], up.upper[i]) == (-0.5, 0.5)
+        assert np.isinf(full.lower[full.index(name)]) and np.isinf(full.upper[full.index(name)])
+    assert np.isinf(up.upper[up.index("pelvis_ry")])
+    x = up.zero(BodyModel.build(None, "upper").skeleton)
+    x[up.index("pelvis_rx")], x[up.index("pelvis_ry")] = -1.1, 2.5
+    v = up.validate(x)[0]
+    assert v[up.index("pelvis_rx")] == -0.5 and v[up.index("pelvis_ry")] == 2.5
+    # every other limit is the full preset's
+    for i, n in enumerate(up.names):
+        if n not in ("pelvis_rx", "pelvis_rz"):
+            j = full.index(n)
+            assert (up.lower[i], up.upper[i]) == (full.lower[j], full.upper[j]), n

@@ -77,6 +77,16 @@ PRESETS = {
               if k not in ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle")},
 }
 
+#: Limits a preset sets instead of :data:`LIMITS`. ``"upper"`` is for a seated subject: the
+#: pelvis rests on the seat, so it turns freely about the vertical but tilts (pitch and roll,
+#: after the turn in its Euler order) by at most 0.5 rad (about 30 degrees: slouching, or
+#: leaning forward from the hips); the spine adds up to 1.8 rad of forward bend. Without the
+#: legs nothing else holds the pelvis upright: measured on the caliscope take (seated, hands
+#: and face in the masks), the free pelvis started 1.1 rad pitched and 0.8 rolled, and the
+#: track ended with the torso lying towards a camera.
+PRESET_LIMITS = {"upper": {"pelvis": {"x": (-0.5, 0.5, _ROOT_R[2]),
+                                      "z": (-0.5, 0.5, _ROOT_R[2])}}}
+
 #: Mesh parts (:data:`gltrack.body.mesh.PARTS`) a preset leaves out of the body's surface, so
 #: they are neither drawn nor scored: ``"upper"`` is for a subject whose legs the cameras do
 #: not see (seated behind a desk); legs that are hidden must not be fitted to whatever hides
@@ -171,13 +181,14 @@ def make_dofs(skeleton: Skeleton, preset: str = "full") -> DofSet:
         joint.append(0); axis.append(k); slot.append(-1)
         lo.append(_ROOT_T[0]); hi.append(_ROOT_T[1]); sig.append(_ROOT_T[2])
     spec = {"pelvis": "xyz", **PRESETS[preset]}
+    own = PRESET_LIMITS.get(preset, {})
     for j, jname in enumerate(skeleton.names):
         axes = spec.get(jname, "")
         order = skeleton.orders[j].lower()
         for ax in order:  # keep Euler order so names read naturally
             if ax not in axes:
                 continue
-            lim = LIMITS[jname][ax]
+            lim = own.get(jname, {}).get(ax, LIMITS[jname][ax])
             names.append(f"{jname}_r{ax}")
             joint.append(j); axis.append("xyz".index(ax)); slot.append(order.index(ax))
             lo.append(lim[0]); hi.append(lim[1]); sig.append(lim[2])

@@ -48,6 +48,21 @@ def unusual_stature(height: float) -> str | None:
             "(--body FILE.json)")
 
 
+def fallback_body(body: BodyModel) -> BodyModel:
+    """The default adult body (:meth:`BodyModel.build`: 1.75 m, girth scale 1) with ``body``'s
+    DOF preset and level of detail: what :func:`resolve_body` tracks with when an estimate is
+    outside :data:`USUAL_STATURE`.
+
+    Why not the estimate, or the estimate clamped into the range: an estimate that far off was
+    misled by the masks (they miss the still torso of a seated person, or take in background),
+    and its girth and proportions were fitted to the same masks, so it says little about the
+    subject; the population's usual body is the better guess. Measured on the caliscope take
+    (seated, masks holding hands and face): the estimate (1.24 m, girth 1.26) started in front
+    of the person, the default body on the person.
+    """
+    return BodyModel.build(None, body.dofs.preset, body.lod)
+
+
 def estimate_frames(dataset, start: int, stop: int, n_frames: int = 3, span: float = 0.4) -> list:
     """The frames a body estimate uses: ``n_frames`` spread over the first ``span`` seconds of
     the tracked range ``start:stop`` (the defaults of
@@ -97,14 +112,20 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
                             rng=rng if rng is not None else np.random.default_rng(0))
         log.info("body estimated from frames %s in %.1f s: stature %.3f m, girth scale %.2f",
                  est.frames, est.seconds, est.skeleton.height(), est.girth_scale)
+        body = est.body
         warn = unusual_stature(est.skeleton.height())
         if warn:
-            log.warning("%s: %s", dataset.path, warn)
-        rec = body_record(est.body, "estimate")
+            body = fallback_body(est.body)
+            log.warning("%s: %s; tracking with the default adult body (%.2f m) instead",
+                        dataset.path, warn, body.skeleton.height())
+        rec = body_record(body, "estimate")
         rec["estimate"] = {"frames": [int(f) for f in est.frames], "costs": est.costs,
                            "unit": est.unit, "seconds": float(est.seconds),
                            "evaluations": int(est.evaluations)}
-        return est.body, rec
+        if warn:
+            rec["estimate"]["rejected"] = {"stature_m": round(float(est.skeleton.height()), 4),
+                                           "girth_scale": round(float(est.girth_scale), 4)}
+        return body, rec
     if spec == "dataset":
         body = body_from_meta(dataset.body, preset, where=str(Path(dataset.path) / "meta.json"))
         return body, body_record(body, "dataset")
