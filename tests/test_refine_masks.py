@@ -477,3 +477,32 @@ def test_model_silhouette_drops_triangles_far_outside_the_lens():
         assert not model_silhouette(cam, far, faces).any()
         assert model_silhouette(cam, triangle(0.0, 0.0), faces).any()
         assert not model_silhouette(cam, triangle(1e9, 0.0), faces).any()
+
+
+def test_a_refining_track_off_what_moved_is_lost(spoilt, ctx, tmp_path):
+    """With refined masks the silhouette error follows the model, so the tracker also checks
+    the estimate against the sequence masks: on the person it covers most of them (quality as
+    usual); moved 3 m away it covers none, and the frame counts as lost (quality 1)."""
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = _spoilt_copy(spoilt, tmp_path)
+    ds = Dataset.open(path)
+    infos = {}
+    for name, dx in (("on", 0.0), ("off", 3.0)):
+        x0 = P[0].copy()
+        x0[0] += dx
+        tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, mask_refine="grabcut"),
+                        np.random.default_rng(0))
+        tr.start(0, x0)
+        infos[name] = tr.step(1).info
+        tr.close()
+    on, off = infos["on"], infos["off"]
+    assert min(on["sequence_covered"]) > 0.3 and on["quality"] < 0.5, on  # a ghost blob too
+    assert max(off["sequence_covered"]) < HPSTracker.min_sequence_covered, off
+    assert off["quality"] >= 1.0
+    # without refinement there is nothing to check it against, and nothing is recorded
+    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=12, layers=1, mask_refine="none"),
+                    np.random.default_rng(0))
+    tr.start(0, P[0])
+    assert "sequence_covered" not in tr.step(1).info
+    tr.close()

@@ -108,6 +108,27 @@ def model_silhouette(camera, vertices: np.ndarray, faces: np.ndarray) -> np.ndar
     return area >= 0.5
 
 
+def mask_covered(camera, vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> float:
+    """Share of ``mask``'s pixels inside the posed mesh's silhouette in ``camera``'s real image
+    (:func:`model_silhouette`); NaN for an empty mask.
+
+    Parameters
+    ----------
+    camera : gltrack.camera.Camera, as calibrated (``mask`` is distorted like the image)
+    vertices : (V, 3) float, metres; faces : (F, 3) int
+    mask : (H, W) bool
+
+    Returns
+    -------
+    float in 0..1, or NaN
+    """
+    mask = np.asarray(mask, bool)
+    n = np.count_nonzero(mask)
+    if n == 0:
+        return float("nan")
+    return np.count_nonzero(mask & model_silhouette(camera, vertices, faces)) / n
+
+
 def metres_to_pixels(camera, metres: float, depth: float) -> int:
     """``metres`` seen at ``depth`` metres in ``camera``'s pixels (at least 1)."""
     return max(int(round(camera.fx * metres / max(depth, 0.1))), 1)

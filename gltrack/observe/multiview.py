@@ -64,6 +64,8 @@ class MultiviewObservation:
         the mask kept within reach of it) before it is undistorted. The tracker sets it (its
         ``mask_refine`` option) to the last frame's estimate, so segmentation follows tracking
         frame by frame.
+    sequence : None, or list (C) of (H, W) bool: the masks of the last frame read with a
+        ``model``, as they were before it refined them (distorted, like the images)
     """
 
     def __init__(self, dataset, foreground: str = "auto", rng=None):
@@ -89,6 +91,7 @@ class MultiviewObservation:
         self.mode = mode
         self.rng = rng
         self.model = None
+        self.sequence = None
         self._bg = {}
 
     def _background_model(self, k):
@@ -103,11 +106,13 @@ class MultiviewObservation:
     def __call__(self, frame: int) -> tuple[list, list]:
         """Undistorted colour images (C of (H, W, 3) uint8 BGR) and foreground masks ((H, W) bool)."""
         images, masks = [], []
+        self.sequence = [] if self.model is not None else None
         for k, (cam, i) in enumerate(zip(self.cameras, self.index)):
             bgr = self.dataset.colour(frame, i)
             fg = self.dataset.mask(frame, i) if self.mode == "dataset" else \
                 self._background_model(k).foreground(bgr)
             if self.model is not None:
+                self.sequence.append(np.asarray(fg, bool))
                 fg = refine_view(cam, bgr, fg, *self.model, max_pixels=REFINE_PIXELS)
             images.append(cam.undistort_image(bgr, cv2.INTER_LINEAR) if np.any(cam.dist) else bgr)
             masks.append(undistort_mask(cam, fg))
