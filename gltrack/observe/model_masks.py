@@ -30,6 +30,8 @@ import logging
 import cv2
 import numpy as np
 
+from gltrack.render.reference import silhouette_overlap
+
 from .foreground import dilate_mask, erode_mask
 
 log = logging.getLogger(__name__)
@@ -122,11 +124,7 @@ def mask_covered(camera, vertices: np.ndarray, faces: np.ndarray, mask: np.ndarr
     -------
     float in 0..1, or NaN
     """
-    mask = np.asarray(mask, bool)
-    n = np.count_nonzero(mask)
-    if n == 0:
-        return float("nan")
-    return np.count_nonzero(mask & model_silhouette(camera, vertices, faces)) / n
+    return silhouette_overlap(model_silhouette(camera, vertices, faces), mask)[2]
 
 
 def metres_to_pixels(camera, metres: float, depth: float) -> int:

@@ -192,8 +192,10 @@ class MultiviewOptions(Options):
         (full body, frames 20-49, scored against masks refined by the scene test, which this
         refinement does not see) the mean IoU is 0.638 with it against 0.663 without (GrabCut
         grows the masks into background of the subject's colours and the model follows), so
-        not for full-body takes: a refinement seeded by a wrong model confirms it. About
-        0.1 s a camera and frame at 640x360 (:data:`~gltrack.observe.multiview.REFINE_PIXELS`)
+        not for full-body takes: a refinement seeded by a wrong model confirms it (hence
+        :attr:`MultiviewTracker.min_sequence_covered`, which checks the estimate against the
+        masks before the refinement). About 0.1 s a camera and frame at 640x360
+        (:data:`~gltrack.observe.multiview.REFINE_PIXELS`)
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
