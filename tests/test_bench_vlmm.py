@@ -2,9 +2,10 @@
 from gltrack.bench.vlmm import _summary, _vlmm_targets, format_table
 
 
-def _row(method, rms, seed, fps=2.0):
+def _row(method, rms, seed, fps=2.0, turned=0.0):
     return {"method": method, "seed": seed, "init": "groundtruth", "options": {},
             "rms_joint_error_m": rms, "mean_joint_error_mm": 900 * rms,
+            "frac_turned_round": turned,
             "evaluations_per_frame": 200.0, "fps": fps, "rms_over_time_m": [rms],
             "stage_seconds_per_frame": {"voxels": 0.1, "blob_fit": 0.05,
                                         "particle_filter": 0.02}}
@@ -14,7 +15,8 @@ def test_targets_and_tables():
     p1 = {"vlmm_200": _summary([_row("vlmm", 0.08, 0), _row("vlmm", 0.09, 1)]),
           "condensation_5000": _summary([_row("condensation", 0.045, 0)]),
           "apf_1000x5": _summary([_row("apf-blobs", 0.07, 0)])}
-    p2 = {"vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0)]),
+    p2 = {"vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0, turned=0.25),
+                                 _row("vlmm", 0.095, 1, fps=11.0, turned=0.31)]),
           "vlmm_1000_colour": _summary([_row("vlmm", 0.097, 0, fps=9.5)]),
           "condensation_5000": _summary([_row("condensation", 0.2, 0)])}
     assert abs(p1["vlmm_200"]["rms_joint_error_m"] - 0.085) < 1e-12
@@ -38,6 +40,9 @@ def test_targets_and_tables():
     assert "protocol 1, motion models only" in text and "protocol 2, the whole system" in text
     assert "   85.0" in text and "after 3 frames" in text
     assert "11.00 (colour segmentation: 9.50) frames/s" in text
+    # the share of frames turned round, averaged over the seeds, in its own column
+    vlmm_line = next(ln for ln in text.splitlines() if ln.startswith("vlmm_1000 "))
+    assert vlmm_line.split()[4] == "0.28"
     res["recovery"]["vlmm_1000"]["frames_to_recover"] = None
     assert _vlmm_targets(res, quick=False)["recovery_within_30"] is False
 

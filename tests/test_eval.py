@@ -211,6 +211,91 @@ def test_reports(tmp_path):
     assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _heading_joints(joints):
+    idx = [list(JOINT_NAMES).index(j) for j in M.HEADING_JOINTS]
+    return joints[:, idx]
+
+
+@pytest.mark.parametrize("up", ["y", "z"])
+def test_heading_error_of_a_body_turned_about_its_trunk(up):
+    """Each frame's body turned about its own trunk axis by a known angle: the metric gives
+    that angle (the twin 180), whatever the world's up axis and wherever the body stands; the
+    same joints give 0, and a move without a turn gives 0 too."""
+    rng = np.random.default_rng(3)
+    _, joints = motion(rng, 8)
+    if up == "z":  # the same bodies in a Z-up world
+        joints = joints @ Rotation.from_euler("x", 90, degrees=True).as_matrix().T
+    J = list(JOINT_NAMES)
+    angles = np.array([0.0, 10.0, 45.0, 89.0, 91.0, 135.0, 179.0, 180.0])
+    turned = joints.copy()
+    for i, a in enumerate(angles):
+        pel, neck = joints[i, J.index("pelvis")], joints[i, J.index("neck")]
+        axis = (neck - pel) / np.linalg.norm(neck - pel)
+        R = Rotation.from_rotvec(np.radians(a) * axis).as_matrix()
+        turned[i] = (joints[i] - pel) @ R.T + pel + rng.normal(scale=0.5, size=3)
+    deg = M.heading_errors(_heading_joints(turned), _heading_joints(joints))
+    np.testing.assert_allclose(deg, angles, atol=1e-6)
+    np.testing.assert_allclose(M.heading_errors(_heading_joints(joints),
+                                                _heading_joints(joints)), 0.0, atol=1e-5)
+    gt = {"joints": joints, "joint_names": list(JOINT_NAMES)}
+    m = M.evaluate({"joints": turned, "joint_names": list(JOINT_NAMES)}, gt)
+    assert m["heading_error_deg"] == pytest.approx(angles.mean(), abs=1e-6)
+    assert m["frac_turned_round"] == pytest.approx(4 / 8)  # 91, 135, 179 and 180 degrees
+    np.testing.assert_allclose(m["per_frame"]["heading_error_deg"], angles, atol=1e-6)
+
+
+def test_heading_error_needs_its_joints():
+    """Without a shoulder the heading is not scored (NaN, n/a in the table), and a missing
+    (NaN) joint in one frame leaves that frame out of the share."""
+    gt = gt_dict(np.random.default_rng(4))
+    keep = [j for j in JOINT_NAMES if j != "l_shoulder"]
+    idx = [list(JOINT_NAMES).index(j) for j in keep]
+    res = {"joints": gt["joints"][:, idx], "joint_names": keep}
+    m = M.evaluate(res, {"joints": gt["joints"][:, idx], "joint_names": keep})
+    assert np.isnan(m["heading_error_deg"]) and np.isnan(m["frac_turned_round"])
+    assert "n/a" in report.summary_table(m).splitlines()[7]
+    j = gt["joints"].copy()
+    j[0, list(JOINT_NAMES).index("l_hip")] = np.nan  # a joint of the estimate
+    g = gt["joints"].copy()
+    g[1, list(JOINT_NAMES).index("neck")] = np.nan  # the truth's trunk axis
+    h = M.heading_errors(_heading_joints(j), _heading_joints(g))
+    assert np.isnan(h[:2]).all() and np.all(np.isfinite(h[2:]))
+    m = M.evaluate({"joints": j, "joint_names": list(JOINT_NAMES)},
+                   {"joints": g, "joint_names": list(JOINT_NAMES)})
+    assert m["frac_turned_round"] == 0.0 and np.isfinite(m["heading_error_deg"])
+    with pytest.raises(ValueError, match="heading_errors needs"):
+        M.heading_errors(j[:, :5], gt["joints"][:, :5])
+
+
+def test_error_plot_shades_turned_round_frames(tmp_path):
+    """The error plot draws the turned-round frames as a shaded band (one legend entry)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    gt = gt_dict(np.random.default_rng(5))
+    m = M.evaluate(result_from(gt), gt)
+    m["per_frame"]["heading_error_deg"] = np.array([0, 0, 120, 150, 0, 0], float)
+    saved = plt.Figure.savefig
+    spans = []
+
+    def spy(fig, *a, **k):  # count the shaded spans of the figure it saves
+        spans.append(sum(len(ax.patches) for ax in fig.axes))
+        labels = [t.get_text() for ax in fig.axes if ax.get_legend()
+                  for t in ax.get_legend().get_texts()]
+        spans.append(sum("turned round" in t for t in labels))
+        return saved(fig, *a, **k)
+
+    plt.Figure.savefig = spy
+    try:
+        report.plot_errors(m, tmp_path / "e.png")
+        m["per_frame"]["heading_error_deg"][:] = 0.0
+        report.plot_errors(m, tmp_path / "f.png")
+    finally:
+        plt.Figure.savefig = saved
+    assert spans == [2, 1, 0, 0]
+
+
 # ---- gltrack eval ------------------------------------------------------------------------------
 def make_dataset_and_result(tmp_path, offset, with_gt=True, infos=None):
     from gltrack.camera import Camera

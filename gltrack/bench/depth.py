@@ -119,7 +119,7 @@ def _run(ds, method, opts, out, ctx, hooks=(), protocol=ORACLE, init=None):
     frames = int(timing["frames"])
     row = {k: (None if m.get(k) is None else float(m[k])) for k in (
         "marker_mean_m", "marker_max_m", "frac_markers_tracked", "frac_markers_failed",
-        "mean_joint_error_mm")}
+        "mean_joint_error_mm", "frac_turned_round")}
     row.update(fps=float(timing.get("fps") or frames / max(wall, 1e-9)),
                evaluations_per_frame=float(timing["evaluations"]) / max(frames, 1), frames=frames,
                joint_error_by_joint_mm=by_joint(m))

@@ -13,6 +13,16 @@ tracker.
 
 Missing ground truth (NaN coordinates, e.g. an occluded marker) is ignored by every metric.
 
+Heading
+-------
+A track can sit on the subject's outline while facing the wrong way (a silhouette, a set of
+blobs or a depth image of a body fits its turned-round twin almost as well), and a mean joint
+error does not say so. :func:`heading_errors` compares which way the body faces: the angle
+between the estimated and the true across-body direction (left hip minus right hip plus left
+shoulder minus right shoulder), both taken in the plane perpendicular to the true trunk axis
+(pelvis to neck), so it needs no up axis and holds in any world frame. Above 90 degrees the
+track is turned round (``frac_turned_round``).
+
 Marker errors (Ganapathi et al. 2010)
 -------------------------------------
 Per frame, ``mean_i ||m_i - m'_i||`` and ``max_i ||m_i - m'_i||`` over the visible markers. A marker
@@ -39,8 +49,13 @@ FAILED_M = 0.3
 #: Summary keys of :func:`evaluate`, in the order reports show them.
 SUMMARY_KEYS = (
     "mean_joint_error_mm", "mpjpe_mm", "pa_mpjpe_mm", "marker_mean_m", "marker_max_m",
-    "frac_markers_tracked", "frac_markers_failed", "frames",
+    "frac_markers_tracked", "frac_markers_failed", "heading_error_deg", "frac_turned_round",
+    "frames",
 )
+#: Joints :func:`heading_errors` needs on both sides.
+HEADING_JOINTS = ("pelvis", "neck", "l_hip", "r_hip", "l_shoulder", "r_shoulder")
+#: Heading error above which a frame counts as turned round, degrees.
+TURNED_ROUND_DEG = 90.0
 
 
 def _as_points(x, name):
@@ -204,6 +219,46 @@ def marker_errors(pred, gt, tracked=TRACKED_M, failed=FAILED_M):
             "visible": n.astype(np.int64)}
 
 
+def heading_errors(pred, gt):
+    """Per-frame angle between the estimated and the true facing direction, degrees.
+
+    Parameters
+    ----------
+    pred, gt : (N, 6, 3) positions of :data:`HEADING_JOINTS` (pelvis, neck, l_hip, r_hip,
+        l_shoulder, r_shoulder), metres, any world frame (both in the same one)
+
+    Returns
+    -------
+    (N,) degrees in [0, 180]; NaN where a joint is missing (NaN) or the trunk axis or an
+    across-body direction vanishes
+
+    Notes
+    -----
+    The across-body direction ``(l_hip - r_hip) + (l_shoulder - r_shoulder)`` of each side is
+    projected on the plane perpendicular to the *true* trunk axis (pelvis to neck); the angle
+    between the two projections is the heading error. A body turned about its trunk by ``a``
+    gives ``|a|``; its turned-round twin 180.
+    """
+    pred, gt = _check_pair(pred, gt)
+    if pred.shape[1] != len(HEADING_JOINTS):
+        raise ValueError(f"heading_errors needs the {len(HEADING_JOINTS)} joints "
+                         f"{HEADING_JOINTS}, got {pred.shape[1]}")
+    axis = gt[:, 1] - gt[:, 0]
+    n = np.linalg.norm(axis, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = axis / n
+
+        def across(x):
+            a = (x[:, 2] - x[:, 3]) + (x[:, 4] - x[:, 5])
+            a = a - np.sum(a * axis, axis=1, keepdims=True) * axis
+            return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+        a, b = across(pred), across(gt)
+        # atan2 of sine and cosine: exact near 0 and 180 degrees, where arccos is not
+        return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=1),
+                                     np.sum(a * b, axis=1)))
+
+
 def common_names(a, b, wanted=None):
     """Names present in both ``a`` and ``b`` (restricted to ``wanted``), in the order of ``wanted``
     (or of ``a``), with their indices into ``a`` and ``b``.
@@ -224,6 +279,14 @@ def _finite_mean(x):
     x = np.asarray(x, dtype=np.float64)
     x = x[~np.isnan(x)]
     return float(x.mean()) if x.size else float("nan")
+
+
+def _turned_round(deg):
+    """Share of the frames with a heading (NaN: none) whose error exceeds
+    :data:`TURNED_ROUND_DEG`."""
+    deg = np.asarray(deg, dtype=np.float64)
+    ok = np.isfinite(deg)
+    return float(np.mean(deg[ok] > TURNED_ROUND_DEG)) if ok.any() else float("nan")
 
 
 def evaluate(result, groundtruth, joints=EVAL_JOINTS):
@@ -250,7 +313,10 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
         (``"markers"`` or ``"joints"`` when either side has no markers and the scored joints
         stand in for them) and ``per_frame``: a dict of (N,) arrays
         ``frame``, ``joint_error_mm``, ``mpjpe_mm``, ``pa_mpjpe_mm``, ``marker_mean_m``,
-        ``marker_max_m``, ``frac_markers_tracked``, ``frac_markers_failed``.
+        ``marker_max_m``, ``frac_markers_tracked``, ``frac_markers_failed``,
+        ``heading_error_deg`` (:func:`heading_errors`; NaN without the joints it needs).
+        ``heading_error_deg`` in the summary is its mean over frames and ``frac_turned_round``
+        the share of frames above :data:`TURNED_ROUND_DEG`.
         ``marker_max_m`` in the summary is the mean over frames of the per-frame maximum, as
         Ganapathi et al. average both measures over a sequence.
     """
@@ -279,6 +345,12 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
         log.warning("no %s joint: MPJPE is relative to the joint centroid", ROOT_JOINT)
     per["mpjpe_mm"] = 1000.0 * mpjpe(pred, gt, root)
     per["pa_mpjpe_mm"] = 1000.0 * pa_mpjpe(pred, gt)
+    hn, hp, hg = common_names(result["joint_names"], groundtruth["joint_names"], HEADING_JOINTS)
+    if len(hn) == len(HEADING_JOINTS):
+        order = [hn.index(j) for j in HEADING_JOINTS]
+        per["heading_error_deg"] = heading_errors(pj[:, hp[order]], gj[frame][:, hg[order]])
+    else:
+        per["heading_error_deg"] = np.full(n, np.nan)
 
     pm, gm = result.get("markers"), groundtruth.get("markers")
     source = "markers"
@@ -314,6 +386,8 @@ def evaluate(result, groundtruth, joints=EVAL_JOINTS):
         if tot else float("nan"),
         "frac_markers_failed": float(np.nansum(per["frac_markers_failed"] * vis) / tot)
         if tot else float("nan"),
+        "heading_error_deg": _finite_mean(per["heading_error_deg"]),
+        "frac_turned_round": _turned_round(per["heading_error_deg"]),
         "frames": int(n),
         "joints": names,
         "per_joint": {name: {"mean_mm": _finite_mean(dist[:, j]),

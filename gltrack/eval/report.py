@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gltrack.eval.metrics import SUMMARY_KEYS
+from gltrack.eval.metrics import SUMMARY_KEYS, TURNED_ROUND_DEG
 
 log = logging.getLogger(__name__)
 
@@ -24,6 +24,8 @@ _LABELS = {
     "marker_max_m": ("marker error, max per frame", "m"),
     "frac_markers_tracked": ("markers tracked (<= 0.1 m)", ""),
     "frac_markers_failed": ("markers failed (>= 0.3 m)", ""),
+    "heading_error_deg": ("heading error (facing direction)", "deg"),
+    "frac_turned_round": ("frames turned round (heading > 90 deg)", ""),
     "frames": ("frames", ""),
 }
 
@@ -35,7 +37,7 @@ def _fmt(key, value):
         return str(int(value))
     if key.startswith("frac_"):
         return f"{100.0 * value:.1f} %"
-    if key.endswith("_mm"):
+    if key.endswith("_mm") or key.endswith("_deg"):
         return f"{value:.1f}"
     return f"{value:.4f}"
 
@@ -163,6 +165,7 @@ def plot_errors(metrics, path, title=None, fps=None):
     for key, label in (("joint_error_mm", "3D joint error"), ("mpjpe_mm", "MPJPE"),
                        ("pa_mpjpe_mm", "PA-MPJPE")):
         ax1.plot(x, per[key], label=label, lw=1.2)
+    _shade_turned_round(ax1, x, per.get("heading_error_deg"))
     ax1.set_ylabel("error [mm]")
     ax1.legend(loc="upper left")
     ax1.grid(alpha=0.3)
@@ -179,6 +182,22 @@ def plot_errors(metrics, path, title=None, fps=None):
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def _shade_turned_round(ax, x, heading_deg):
+    """Shade the frames whose heading error exceeds TURNED_ROUND_DEG (one legend entry)."""
+    if heading_deg is None:
+        return
+    h = np.asarray(heading_deg, dtype=np.float64)
+    bad = np.isfinite(h) & (h > TURNED_ROUND_DEG)
+    if not bad.any() or len(x) < 2:
+        return
+    step = float(np.median(np.diff(x)))
+    label = f"turned round (heading > {TURNED_ROUND_DEG:.0f} deg)"
+    for i in np.nonzero(bad)[0]:
+        ax.axvspan(x[i] - step / 2, x[i] + step / 2, color="tab:red", alpha=0.15, lw=0,
+                   label=label)
+        label = None
 
 
 def plot_comparison(metrics_by_name: dict, path, title=None, fps=None):
