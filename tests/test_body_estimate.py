@@ -167,19 +167,30 @@ def test_an_unusual_estimated_stature_is_flagged():
     assert "1.20 m" in unusual_stature(1.2)
 
 
-def test_an_estimate_outside_usual_statures_falls_back_to_the_default_body(tmp_path, ctx):
-    """``--body estimate`` on a 1.25 m subject (depth, four frames): the estimate is outside
-    :data:`USUAL_STATURE`, so the run tracks with the default adult body of the same preset,
-    and ``body.json``'s record says what was rejected; a usual subject keeps its estimate."""
-    from gltrack.track.bodies import USUAL_STATURE, fallback_body, resolve_body
+def test_an_estimate_outside_usual_statures_falls_back_only_where_the_stature_is_inferred(
+        tmp_path, ctx, caplog):
+    """``--body estimate`` (depth, four frames). With the ``upper`` preset the stature is
+    inferred from the upper body: a 2.1 m subject's estimate is outside :data:`USUAL_STATURE`,
+    so the run tracks with the default adult body of the same preset, and ``body.json``'s
+    record says what was rejected. A full-body preset sees the stature: a 1.25 m subject keeps
+    its estimate, with the warning. A usual subject keeps its estimate."""
+    from gltrack.track.bodies import (USUAL_STATURE, fallback_body, resolve_body,
+                                      stature_extrapolated)
 
-    body, rec = resolve_body("estimate", _depth(tmp_path / "small", _body(1.25, 1.0)), "38",
-                             ctx=ctx, rng=np.random.default_rng(0))
+    assert stature_extrapolated("upper") and not stature_extrapolated("full")
+    assert not stature_extrapolated("38") and not stature_extrapolated("25")
+    tall = _depth(tmp_path / "tall", _body(2.1, 1.0))
+    body, rec = resolve_body("estimate", tall, "upper", ctx=ctx, rng=np.random.default_rng(0))
     rejected = rec["estimate"]["rejected"]
-    assert rejected["stature_m"] < USUAL_STATURE[0], rejected
+    assert rejected["stature_m"] > USUAL_STATURE[1], rejected
     assert body.skeleton.height() == pytest.approx(1.75) and body.girth_scale == 1.0
-    assert body.dofs.preset == "38" and rec["source"] == "estimate"
+    assert body.dofs.preset == "upper" and rec["source"] == "estimate"
     np.testing.assert_allclose(fallback_body(body).skeleton.offsets, body.skeleton.offsets)
+    caplog.clear()
+    small = _depth(tmp_path / "small", _body(1.25, 1.0))
+    body, rec = resolve_body("estimate", small, "38", ctx=ctx, rng=np.random.default_rng(0))
+    assert "rejected" not in rec["estimate"] and body.skeleton.height() < 1.35
+    assert any("outside" in r.getMessage() for r in caplog.records)
     body, rec = resolve_body("estimate", _depth(tmp_path / "usual", _body(1.62)), None, ctx=ctx,
                              rng=np.random.default_rng(0))
     assert "rejected" not in rec["estimate"] and body.skeleton.height() < 1.72

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gltrack.body.dofs import HIDDEN_PARTS
 from gltrack.body.model import BodyModel, body_from_meta, body_record
 from gltrack.data.results import load_body_record
 
@@ -48,17 +49,29 @@ def unusual_stature(height: float) -> str | None:
             "(--body FILE.json)")
 
 
+def stature_extrapolated(preset: str) -> bool:
+    """Whether a body estimated with DOF ``preset`` infers its stature instead of seeing it:
+    the preset hides parts (``"upper"``: the legs of a seated subject), so the estimate fits the
+    trunk, arms and head and the legs follow from proportions."""
+    return bool(HIDDEN_PARTS.get(preset))
+
+
 def fallback_body(body: BodyModel) -> BodyModel:
     """The default adult body (:meth:`BodyModel.build`: 1.75 m, girth scale 1) with ``body``'s
-    DOF preset and level of detail: what :func:`resolve_body` tracks with when an estimate is
-    outside :data:`USUAL_STATURE`.
+    DOF preset and level of detail: what :func:`resolve_body` tracks with when an estimate that
+    extrapolates the stature (:func:`stature_extrapolated`) is outside :data:`USUAL_STATURE`.
 
-    Why not the estimate, or the estimate clamped into the range: an estimate that far off was
-    misled by the masks (they miss the still torso of a seated person, or take in background),
-    and its girth and proportions were fitted to the same masks, so it says little about the
-    subject; the population's usual body is the better guess. Measured on the caliscope take
-    (seated, masks holding hands and face): the estimate (1.24 m, girth 1.26) started in front
-    of the person, the default body on the person.
+    Why not the estimate, or the estimate clamped into the range: such an estimate was misled
+    by the masks (they miss the still torso of a seated person, or take in background), and its
+    girth and proportions were fitted to the same masks, so it says little about the subject;
+    the population's usual body is the better guess. Measured on the caliscope take (seated,
+    masks holding hands and face): the estimate (1.24 m, girth 1.26) started in front of the
+    person, the default body on the person.
+
+    Why only then: a full-body estimate sees the stature it reports, and short subjects are
+    real (children; the CMU salsa dancer's skeleton is 1.18 m, the hop subject's 1.42): there
+    the default body would replace a good estimate (the salsa's was within 13 mm) with one
+    0.57 m too tall, so a full-body estimate outside the range only gets the warning.
     """
     return BodyModel.build(None, body.dofs.preset, body.lod)
 
@@ -114,15 +127,19 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
                  est.frames, est.seconds, est.skeleton.height(), est.girth_scale)
         body = est.body
         warn = unusual_stature(est.skeleton.height())
-        if warn:
+        fell_back = bool(warn) and stature_extrapolated(est.body.dofs.preset)
+        if fell_back:
             body = fallback_body(est.body)
-            log.warning("%s: %s; tracking with the default adult body (%.2f m) instead",
-                        dataset.path, warn, body.skeleton.height())
+            log.warning("%s: %s; the %r preset infers the stature from the upper body, so "
+                        "tracking with the default adult body (%.2f m) instead", dataset.path,
+                        warn, body.dofs.preset, body.skeleton.height())
+        elif warn:
+            log.warning("%s: %s", dataset.path, warn)
         rec = body_record(body, "estimate")
         rec["estimate"] = {"frames": [int(f) for f in est.frames], "costs": est.costs,
                            "unit": est.unit, "seconds": float(est.seconds),
                            "evaluations": int(est.evaluations)}
-        if warn:
+        if fell_back:
             rec["estimate"]["rejected"] = {"stature_m": round(float(est.skeleton.height()), 4),
                                            "girth_scale": round(float(est.girth_scale), 4)}
         return body, rec
