@@ -479,3 +479,46 @@ def test_quality_says_when_the_iou_is_against_masks_the_track_refined():
     plain = quality_summary(res, {f: {"iou": [0.9, 0.8]} for f in range(4)}, ["cam0", "cam1"])
     assert plain["iou_frames_self_refined"] == 0
     assert "refined" not in quality_table(plain)
+
+
+def test_body_height_against_the_subject_surface(tmp_path, capsys):
+    """A dataset whose subject records its surface stature (``gltrack synth --mesh``) gets the
+    estimate's height compared with that surface too, in the bench figures and in ``gltrack
+    eval``; without the record nothing is added."""
+    from gltrack.bench.protocols import body_error_of, body_error_text
+    from gltrack.body.model import BodyModel, body_to_meta
+    from gltrack.camera import Camera
+    from gltrack.data.dataset import DatasetWriter
+    from gltrack.data.results import ResultsWriter, save_body_record
+
+    gt = gt_dict(np.random.default_rng(9))  # a 1.75 m default skeleton
+    c = Camera("cam0", "depth", 8, 6, [[8.0, 0, 3.5], [0, 8.0, 2.5], [0, 0, 1]], np.zeros(5),
+               np.eye(3), np.array([0.0, 0.0, 3.0]))
+    true, estimate = (BodyModel.build(default_skeleton(h), "full") for h in (1.75, 1.80))
+    for name, subject in (("with", {"mesh": "x.glb", "girth_scale": 1.0, "stature_m": 1.86}),
+                          ("without", None)):
+        ds, res = tmp_path / f"ds_{name}", tmp_path / f"res_{name}"
+        with DatasetWriter(ds, "depth", 30, [c], body=body_to_meta(default_skeleton(1.75)),
+                           meta=None if subject is None else {"subject": subject}) as w:
+            for f in range(N):
+                w.write_depth(f, 0, np.full((6, 8), 2.0))
+            w.write_groundtruth(true.joints(gt["params"]), gt["joint_names"],
+                                true.marker_positions(gt["params"]), gt["params"],
+                                marker_names=list(true.markers.names))
+        rw = ResultsWriter(res, "hc", gt["joint_names"], list(estimate.markers.names))
+        J, K = estimate.joints(gt["params"]), estimate.marker_positions(gt["params"])
+        for f in range(N):  # the estimate's own joints: eval checks they fit its body.json
+            rw.append(f, gt["params"][f], J[f], K[f], score=0.0, evaluations=1, seconds=0.1)
+        rw.finish()
+        save_body_record(res, estimate, "estimate")
+        e = body_error_of(res, ds)
+        assert e["height_mm"] == pytest.approx(50.0, abs=0.5)
+        assert main(["eval", str(res), str(ds)]) == 0
+        out = capsys.readouterr().out
+        if subject is None:
+            assert "height_vs_surface_mm" not in e and "surface" not in body_error_text(e)
+            assert "subject's surface" not in out
+        else:
+            assert e["height_vs_surface_mm"] == pytest.approx(-60.0, abs=0.5)
+            assert "(against the subject's surface -60 mm)" in body_error_text(e)
+            assert "height +50 mm (against the subject's surface -60 mm)" in out

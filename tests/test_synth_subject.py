@@ -14,10 +14,12 @@ import pytest
 
 from gltrack.body.gltf import load_gltf_skin
 from gltrack.body.mesh import PARTS
+from gltrack.body.model import body_from_meta
 from gltrack.body.skeleton import JOINT_NAMES, default_skeleton
 from gltrack.data.dataset import Dataset, DatasetWriter
 from gltrack.data.sim_multiview import iou
-from gltrack.data.subject import GIRTH_SCALE_RANGE, fit_gltf_subject, fit_to_skeleton
+from gltrack.data.subject import (GIRTH_SCALE_RANGE, fit_gltf_subject, fit_to_skeleton,
+                                  surface_stature)
 from test_synth import _motion, _synth_all, _write_clip
 
 MH = "makehuman_cmu_male1591.glb"
@@ -109,8 +111,12 @@ def test_procedural_girth_scale(procedural):
     assert np.all(fat > 1.05 * base) and np.all(thin < 0.95 * base)
     _same_truth(procedural / "d", procedural / "d_g12")
     meta = json.loads((procedural / "d_g12" / "meta.json").read_text())
+    stature = meta["subject"].pop("stature_m")
     assert meta["subject"] == {"mesh": "procedural", "girth_scale": 1.2}
     assert "girth_scale" not in meta["body"]  # the tracker's body stays the default one
+    # the procedural surface ends where its skeleton does (head end, soles): same stature
+    sk_height = body_from_meta(meta["body"]).skeleton.height()
+    assert abs(stature - sk_height) < 0.01, (stature, sk_height)
 
 
 # ---- the glTF subject --------------------------------------------------------------------------
@@ -120,6 +126,13 @@ def test_gltf_subject_changes_the_images_not_the_truth(procedural, gltf, shared)
     meta = json.loads((gltf / "d" / "meta.json").read_text())
     sub = meta["subject"]
     assert sub["mesh"] == MH and sub["girth_scale"] == 1.0 and len(sub["sha256"]) == 64
+    # the MakeHuman surface keeps its own head and feet (scaled about their joints), so it
+    # ends above the skeleton's head end site (here the default skeleton's: 27 mm; the CMU
+    # skeletons': 91-129 mm); it is the surface an estimate measures
+    sk = body_from_meta(meta["body"]).skeleton
+    assert 0.005 < sub["stature_m"] - sk.height() < 0.2, (sub["stature_m"], sk.height())
+    fitted = fit_gltf_subject(_makehuman(shared), sk)
+    assert sub["stature_m"] == pytest.approx(surface_stature(fitted), abs=1e-4)
     assert json.loads((gltf / "mv" / "synth.json").read_text())["subject"] == sub
     a, b = Dataset.open(procedural / "d"), Dataset.open(gltf / "d")
     for f in range(a.frames):

@@ -40,7 +40,7 @@ from gltrack.data.depth_clips import CLIPS, FPS, bench_range, synth_depth
 
 from . import machine_name, shared_dir
 from .faults import limb_fault
-from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of, body_error_text
 
 log = logging.getLogger(__name__)
 
@@ -402,9 +402,7 @@ def format_table(res: dict) -> str:
                          f"{r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}" + _use_columns(r))
         b = h.get("body_error")
         if b:
-            lines.append(f"{clip:6s} honest body estimate: bones {b['mean_bone_mm']:.0f} mm mean, "
-                         f"{b['max_bone_mm']:.0f} mm max ({b['worst_bone']}), height "
-                         f"{b['height_mm']:+.0f} mm")
+            lines.append(f"{clip:6s} honest body estimate: {body_error_text(b)}")
         w = h["wrong_start"]
         lines.append(f"{clip:6s} hc+ep  honest, start turned {np.degrees(w['radians']):.0f} deg: "
                      f"{w['text']} (re-starts at frames "

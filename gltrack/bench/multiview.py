@@ -39,7 +39,7 @@ import numpy as np
 
 from . import machine_name, shared_dir
 from .depth import WRONG_START_RAD, by_joint, engine_use, settled_frames
-from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of, body_error_text
 
 log = logging.getLogger(__name__)
 
@@ -471,9 +471,7 @@ def table(res: dict) -> str:
                      f"(<= {HONEST_HPS_MM:g}); start turned 90 deg: {w['text']} "
                      f"({w['mean_joint_error_mm']:.1f} mm)")
         if b:
-            lines.append(f"{clip:8s} honest body estimate: bones {b['mean_bone_mm']:.0f} mm mean, "
-                         f"{b['max_bone_mm']:.0f} mm max ({b['worst_bone']}), height "
-                         f"{b['height_mm']:+.0f} mm")
+            lines.append(f"{clip:8s} honest body estimate: {body_error_text(b)}")
     t = res.get("honest_targets", {})
     if t.get("per_clip"):
         lines.append(f"honest targets all met: {t['all_met']}")

@@ -65,7 +65,9 @@ PROTOCOLS = {p.name: p for p in (ORACLE, HONEST)}
 
 def body_error_of(result, dataset) -> dict | None:
     """Error of the body a results folder records against a synthetic dataset's body record
-    (:func:`gltrack.body.measure.body_error`; millimetres), or None without either."""
+    (:func:`gltrack.body.measure.body_error`; millimetres), or None without either. A dataset
+    whose ``"subject"`` records its surface stature (``gltrack synth --mesh``) adds
+    ``height_vs_surface_mm``: the estimate's stature against what the cameras saw."""
     from gltrack.body.measure import body_error
     from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset
@@ -74,7 +76,22 @@ def body_error_of(result, dataset) -> dict | None:
     rec = recorded_body(result)
     with Dataset.open(dataset) as ds:
         meta = ds.body
+        stature = (ds.meta.get("subject") or {}).get("stature_m")
     if rec is None or meta is None:
         return None
     e = body_error(rec[0].skeleton, body_from_meta(meta).skeleton)
-    return {k: e[k] for k in ("mean_bone_mm", "max_bone_mm", "worst_bone", "height_mm")}
+    out = {k: e[k] for k in ("mean_bone_mm", "max_bone_mm", "worst_bone", "height_mm")}
+    if stature is not None:
+        # a glTF subject's surface stands taller than its skeleton's end sites (see
+        # gltrack.data.subject.surface_stature); the estimate measured the surface
+        out["height_vs_surface_mm"] = 1000.0 * (rec[0].skeleton.height() - float(stature))
+    return out
+
+
+def body_error_text(b: dict) -> str:
+    """One line of :func:`body_error_of`'s figures for the bench tables."""
+    text = (f"bones {b['mean_bone_mm']:.0f} mm mean, {b['max_bone_mm']:.0f} mm max "
+            f"({b['worst_bone']}), height {b['height_mm']:+.0f} mm")
+    if b.get("height_vs_surface_mm") is not None:
+        text += f" (against the subject's surface {b['height_vs_surface_mm']:+.0f} mm)"
+    return text

@@ -172,6 +172,7 @@ def run(args):
         body_for_result(result, where=str(recorded[2]), body=recorded[0])
     ds_path = Path(args.dataset)
     fps, truth, cam_names = None, None, None  # truth: the body record of a (synthetic) dataset
+    stature = None
     if ds_path.is_file():
         gt = load_groundtruth(ds_path)
         n_truth = None if gt is None else len(gt["joints"])
@@ -185,6 +186,8 @@ def run(args):
         cam_names = [c.name for c in ds.cameras if c.kind == "colour"]
         if ds.body is not None:
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
+        # a synthetic subject's surface stature (gltrack synth --mesh): what an estimate measured
+        stature = (ds.meta.get("subject") or {}).get("stature_m")
         ds.close()
     cover = coverage(result, run, n_truth, args.result, args.force, dataset=args.dataset)
     infos = frame_infos(args.result)
@@ -218,6 +221,9 @@ def run(args):
             # how far the tracked body is from the one the data was made with
             metrics["body"]["error_vs_dataset"] = {
                 k: v for k, v in body_error(body.skeleton, truth.skeleton).items()}
+            if stature is not None:
+                metrics["body"]["error_vs_dataset"]["height_vs_surface_mm"] = \
+                    1000.0 * (body.skeleton.height() - float(stature))
     print(f"{args.result}: method {result['method']!r} vs {args.dataset}; {cover['text']}")
     print(report.summary_table(metrics))
     print(quality_table(quality))

@@ -641,7 +641,7 @@ def synthesize(params, skeleton, dofs, fps, rig, out, *, seed: int = 0, size=Non
     # what the cameras see; the layout and the ground truth stay the body's
     drawn = subject_mesh(skeleton, mesh, gltf=subject, girth_scale=girth_scale, lod=lod,
                          custom=custom_mesh)
-    subject_rec = subject_record(subject, girth_scale)
+    subject_rec = subject_record(subject, girth_scale, drawn)
     kin = Kinematics(skeleton, dofs)
     P = dofs.validate(params)
     T = len(P)

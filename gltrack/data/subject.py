@@ -247,15 +247,34 @@ def subject_mesh(skeleton, default: BodyMesh, *, gltf=None, girth_scale: float =
     return make_body_mesh(skeleton, lod=lod, girth_scale=float(girth_scale))
 
 
-def subject_record(gltf=None, girth_scale: float = 1.0) -> dict | None:
-    """``meta.json``'s ``"subject"`` entry, or None for the default subject (procedural, 1)."""
+def subject_record(gltf=None, girth_scale: float = 1.0, drawn: BodyMesh | None = None
+                   ) -> dict | None:
+    """``meta.json``'s ``"subject"`` entry, or None for the default subject (procedural, 1).
+
+    With ``drawn`` (the subject's rest-pose mesh) the entry also records its
+    :func:`surface_stature` as ``"stature_m"``.
+    """
     if gltf is None and float(girth_scale) == 1.0:
         return None
     rec = {"mesh": "procedural" if gltf is None else Path(gltf).name,
            "girth_scale": float(girth_scale)}
+    if drawn is not None:
+        rec["stature_m"] = round(surface_stature(drawn), 4)
     if gltf is not None:
         rec["sha256"] = hashlib.sha256(Path(gltf).read_bytes()).hexdigest()
     return rec
+
+
+def surface_stature(mesh: BodyMesh) -> float:
+    """Standing height of a mesh's surface in its rest pose (lowest sole to head top), metres.
+
+    Not :meth:`~gltrack.body.skeleton.Skeleton.height`, which ends at the skeleton's end
+    sites: a glTF subject fitted joint to joint keeps its own head and feet (scaled about their
+    joints), and stands 91-129 mm taller than the CMU skeletons it is fitted to; a body
+    estimate measures the surface, so that is what its height is compared with.
+    """
+    y = np.asarray(mesh.vertices, dtype=np.float64)[:, 1]
+    return float(y.max() - y.min())
 
 
 def top_of_head(mesh: BodyMesh, skeleton) -> np.ndarray:

@@ -61,9 +61,12 @@ def summary_table(metrics):
                      f"{b['height_m']:.3f} m)")
         if "error_vs_dataset" in b:
             e = b["error_vs_dataset"]
-            extra.append(f"body vs the dataset's: bones {e['mean_bone_mm']:.0f} mm mean, "
-                         f"{e['max_bone_mm']:.0f} mm max ({e['worst_bone']}), height "
-                         f"{e['height_mm']:+.0f} mm")
+            line = (f"body vs the dataset's: bones {e['mean_bone_mm']:.0f} mm mean, "
+                    f"{e['max_bone_mm']:.0f} mm max ({e['worst_bone']}), height "
+                    f"{e['height_mm']:+.0f} mm")
+            if e.get("height_vs_surface_mm") is not None:
+                line += f" (against the subject's surface {e['height_vs_surface_mm']:+.0f} mm)"
+            extra.append(line)
     return "\n".join(lines + extra)
 
 
