@@ -72,11 +72,12 @@ def body_error_of(result, dataset) -> dict | None:
     from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset
     from gltrack.data.results import recorded_body
+    from gltrack.data.subject import recorded_stature
 
     rec = recorded_body(result)
     with Dataset.open(dataset) as ds:
         meta = ds.body
-        stature = (ds.meta.get("subject") or {}).get("stature_m")
+        stature = recorded_stature(ds.meta)
     if rec is None or meta is None:
         return None
     e = body_error(rec[0].skeleton, body_from_meta(meta).skeleton)
@@ -84,7 +85,7 @@ def body_error_of(result, dataset) -> dict | None:
     if stature is not None:
         # a glTF subject's surface stands taller than its skeleton's end sites (see
         # gltrack.data.subject.surface_stature); the estimate measured the surface
-        out["height_vs_surface_mm"] = 1000.0 * (rec[0].skeleton.height() - float(stature))
+        out["height_vs_surface_mm"] = 1000.0 * (rec[0].skeleton.height() - stature)
     return out
 
 

@@ -156,6 +156,7 @@ def run(args):
     from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset, load_groundtruth
     from gltrack.data.results import check_result_world, frame_infos, load_results, recorded_body
+    from gltrack.data.subject import recorded_stature
     from gltrack.eval import metrics as M
     from gltrack.eval import report
     from gltrack.eval.quality import quality_summary, quality_table
@@ -187,7 +188,7 @@ def run(args):
         if ds.body is not None:
             truth = body_from_meta(ds.body, where=str(ds_path / "meta.json"))
         # a synthetic subject's surface stature (gltrack synth --mesh): what an estimate measured
-        stature = (ds.meta.get("subject") or {}).get("stature_m")
+        stature = recorded_stature(ds.meta)
         ds.close()
     cover = coverage(result, run, n_truth, args.result, args.force, dataset=args.dataset)
     infos = frame_infos(args.result)
@@ -223,7 +224,7 @@ def run(args):
                 k: v for k, v in body_error(body.skeleton, truth.skeleton).items()}
             if stature is not None:
                 metrics["body"]["error_vs_dataset"]["height_vs_surface_mm"] = \
-                    1000.0 * (body.skeleton.height() - float(stature))
+                    1000.0 * (body.skeleton.height() - stature)
     print(f"{args.result}: method {result['method']!r} vs {args.dataset}; {cover['text']}")
     print(report.summary_table(metrics))
     print(quality_table(quality))

@@ -277,6 +277,14 @@ def surface_stature(mesh: BodyMesh) -> float:
     return float(y.max() - y.min())
 
 
+def recorded_stature(meta: dict) -> float | None:
+    """The subject's surface stature a dataset's ``meta.json`` records (metres; see
+    :func:`subject_record`), or None (the default subject, or a dataset made before it was
+    recorded)."""
+    value = (meta.get("subject") or {}).get("stature_m")
+    return None if value is None else float(value)
+
+
 def top_of_head(mesh: BodyMesh, skeleton) -> np.ndarray:
     """(3,) head joint -> top of the head of ``mesh`` (rest pose), for the hair line."""
     h = skeleton.index("head")
