@@ -485,7 +485,7 @@ def test_body_height_against_the_subject_surface(tmp_path, capsys):
     """A dataset whose subject records its surface stature (``gltrack synth --mesh``) gets the
     estimate's height compared with that surface too, in the bench figures and in ``gltrack
     eval``; without the record nothing is added."""
-    from gltrack.bench.protocols import body_error_of, body_error_text
+    from gltrack.bench.protocols import body_error_of
     from gltrack.body.model import BodyModel, body_to_meta
     from gltrack.camera import Camera
     from gltrack.data.dataset import DatasetWriter
@@ -516,9 +516,9 @@ def test_body_height_against_the_subject_surface(tmp_path, capsys):
         assert main(["eval", str(res), str(ds)]) == 0
         out = capsys.readouterr().out
         if subject is None:
-            assert "height_vs_surface_mm" not in e and "surface" not in body_error_text(e)
+            assert "height_vs_surface_mm" not in e and "surface" not in report.body_error_text(e)
             assert "subject's surface" not in out
         else:
             assert e["height_vs_surface_mm"] == pytest.approx(-60.0, abs=0.5)
-            assert "(against the subject's surface -60 mm)" in body_error_text(e)
+            assert "(against the subject's surface -60 mm)" in report.body_error_text(e)
             assert "height +50 mm (against the subject's surface -60 mm)" in out

@@ -37,10 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from gltrack.data.depth_clips import CLIPS, FPS, bench_range, synth_depth
+from gltrack.eval.report import body_error_text
 
 from . import machine_name, shared_dir
 from .faults import limb_fault
-from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of, body_error_text
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
 

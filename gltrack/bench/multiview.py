@@ -37,9 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from gltrack.eval.report import body_error_text
+
 from . import machine_name, shared_dir
 from .depth import WRONG_START_RAD, by_joint, engine_use, settled_frames
-from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of, body_error_text
+from .protocols import HONEST, ORACLE, PROTOCOLS, body_error_of
 
 log = logging.getLogger(__name__)
 

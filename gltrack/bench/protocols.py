@@ -88,11 +88,3 @@ def body_error_of(result, dataset) -> dict | None:
         out["height_vs_surface_mm"] = 1000.0 * (rec[0].skeleton.height() - stature)
     return out
 
-
-def body_error_text(b: dict) -> str:
-    """One line of :func:`body_error_of`'s figures for the bench tables."""
-    text = (f"bones {b['mean_bone_mm']:.0f} mm mean, {b['max_bone_mm']:.0f} mm max "
-            f"({b['worst_bone']}), height {b['height_mm']:+.0f} mm")
-    if b.get("height_vs_surface_mm") is not None:
-        text += f" (against the subject's surface {b['height_vs_surface_mm']:+.0f} mm)"
-    return text

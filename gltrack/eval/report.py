@@ -60,14 +60,18 @@ def summary_table(metrics):
         extra.append(f"body: {b['source']} ({b['preset']} DOF preset, height "
                      f"{b['height_m']:.3f} m)")
         if "error_vs_dataset" in b:
-            e = b["error_vs_dataset"]
-            line = (f"body vs the dataset's: bones {e['mean_bone_mm']:.0f} mm mean, "
-                    f"{e['max_bone_mm']:.0f} mm max ({e['worst_bone']}), height "
-                    f"{e['height_mm']:+.0f} mm")
-            if e.get("height_vs_surface_mm") is not None:
-                line += f" (against the subject's surface {e['height_vs_surface_mm']:+.0f} mm)"
-            extra.append(line)
+            extra.append(f"body vs the dataset's: {body_error_text(b['error_vs_dataset'])}")
     return "\n".join(lines + extra)
+
+
+def body_error_text(e: dict) -> str:
+    """One line of a body's error against the true one (:func:`gltrack.body.measure.body_error`
+    keys, plus ``height_vs_surface_mm`` where the dataset records its subject's surface)."""
+    text = (f"bones {e['mean_bone_mm']:.0f} mm mean, {e['max_bone_mm']:.0f} mm max "
+            f"({e['worst_bone']}), height {e['height_mm']:+.0f} mm")
+    if e.get("height_vs_surface_mm") is not None:
+        text += f" (against the subject's surface {e['height_vs_surface_mm']:+.0f} mm)"
+    return text
 
 
 def per_joint_lines(per_joint, width: int = 96) -> list[str]:
