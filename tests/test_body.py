@@ -126,3 +126,43 @@ def test_validate_clamps_and_rejects(skel):
         d.validate(np.zeros((2, 5)))
     assert d.validate(np.zeros((0, d.size))).shape == (0, d.size)
     assert np.allclose(d.sigma_at(60), d.sigma30 / 2)
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_local_rotations_match_per_joint_euler(skel, rng, preset):
+    """The one-pass composition against its CPU twin, euler_to_matrix joint by joint, with
+    orders that differ between joints (the Euler orders are shuffled per joint)."""
+    orders = tuple(rng.choice(["ZXY", "YXZ", "ZYX", "XYZ", "XZY", "YZX"]) for _ in skel.orders)
+    sk = Skeleton(skel.names, skel.parents, skel.offsets, skel.ends, orders)
+    d = make_dofs(sk, preset)
+    kin = Kinematics(sk, d)
+    P = d.validate(d.zero(sk) + rng.normal(size=(7, d.size)) * 0.8)
+    angles = kin.angles(P)
+    want = np.stack([euler_to_matrix(angles[:, j], o) for j, o in enumerate(orders)], axis=1)
+    assert np.allclose(kin.local_rotations(P), want, atol=1e-12)
+    sub = [5, 0, 11]
+    assert np.allclose(kin.local_rotations(P, joints=sub), want[:, sub], atol=1e-12)
+    # the output follows the input: one DOF changed moves its joint's rotation alone
+    Q = P.copy()
+    k = d.size - 1
+    Q[:, k] += 0.3
+    moved = np.abs(kin.local_rotations(Q) - kin.local_rotations(P)).max(axis=(0, 2, 3)) > 1e-6
+    assert moved.tolist() == [j == d.joint[k] for j in range(sk.n_joints)]
+
+
+def test_chain_points_match_full_forward_kinematics(skel, rng):
+    d = make_dofs(skel, "full")
+    kin = Kinematics(skel, d)
+    P = d.zero(skel) + rng.normal(size=(9, d.size)) * 0.5
+    pose = kin.forward(P)
+    local = rng.normal(size=(4, 3)) * 0.1
+    for name in ("pelvis", "head", "l_wrist", "r_ankle"):
+        b = skel.index(name)
+        want = kin.transform_points(pose, np.full(4, b), local)
+        assert np.allclose(kin.chain_points(P, b, local), want, atol=1e-12)
+    # one pose as a (D,) vector, and clamping as forward does
+    wild = d.zero(skel)
+    wild[d.index("l_elbow_rx")] = 50.0
+    b = skel.index("l_wrist")
+    want = kin.transform_points(kin.forward(wild), np.array([b]), local[:1])
+    assert np.allclose(kin.chain_points(wild, b, local[:1]), want, atol=1e-12)

@@ -97,8 +97,7 @@ class PartModel:
         bone, local = self.bone[i:i + 1], self.local[i:i + 1]
 
         def fn(X):
-            pose = self.kin.forward(np.atleast_2d(X))
-            return self.kin.transform_points(pose, bone, local)[:, 0]
+            return self.kin.chain_points(np.atleast_2d(X), int(bone[0]), local)[:, 0]
 
         return fn
 
