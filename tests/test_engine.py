@@ -22,6 +22,17 @@ from gltrack.render.engine import (CustomCost, DepthCostParams, ScoringEngine, g
                                    silhouette_iou, silhouette_overlap)
 
 TILE = 64
+#: The engine's two ways to skin and two ways to keep a candidate in its tile (ScoringEngine's
+#: ``skinning`` and ``tile_clip``): every pair must give the reference's images and scores.
+PATHS = [("vertex", "distance"), ("vertex", "fragment"), ("compute", "distance"),
+         ("compute", "fragment")]
+
+
+def path_kwargs(ctx, path):
+    skinning, tile_clip = path
+    if skinning == "compute" and ctx.version_code < 430:
+        pytest.skip("compute skinning needs OpenGL 4.3")
+    return {"skinning": skinning, "tile_clip": tile_clip}
 
 
 @pytest.fixture(scope="module")
@@ -65,11 +76,12 @@ def test_grid_is_power_of_two():
         grid_for(5000, 64)
 
 
-def test_rendered_tiles_match_reference(ctx, body, rng):
+@pytest.mark.parametrize("path", PATHS, ids="-".join)
+def test_rendered_tiles_match_reference(ctx, body, rng, path):
     skel, dofs, kin, mesh = body
     cam = cams()[0]
     S = kin.skinning_matrices(random_poses(body, rng, 6))
-    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, **path_kwargs(ctx, path)) as eng:
         z, tri = eng.render_tiles(S)
     rz, rtri = ref_render(mesh, S, cam)
     both = (z > 0) & (rz > 0)
@@ -81,8 +93,9 @@ def test_rendered_tiles_match_reference(ctx, body, rng):
     assert set(np.unique(tri[z == 0])) == {-1}
 
 
-@pytest.mark.parametrize("smooth", [False, True])
-def test_depth_scores_match_reference(ctx, body, rng, smooth):
+@pytest.mark.parametrize("smooth,path", [(False, PATHS[0]), (True, PATHS[0]), (True, PATHS[3])],
+                         ids=["pixel", "smooth", "smooth-compute-fragment"])
+def test_depth_scores_match_reference(ctx, body, rng, smooth, path):
     skel, dofs, kin, mesh = body
     cam = cams()[0]
     truth = random_poses(body, rng, 1)
@@ -91,7 +104,8 @@ def test_depth_scores_match_reference(ctx, body, rng, smooth):
     obs[rng.random(obs.shape) < 0.03] = 0.0  # dropouts
     S = kin.skinning_matrices(random_poses(body, rng, 12))
     params = DepthCostParams(smooth=smooth)
-    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, depth_params=params) as eng:
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, depth_params=params,
+                       **path_kwargs(ctx, path)) as eng:
         eng.set_depth(0, obs)
         got = {}
         for red in ("mipmap", "compute"):
@@ -108,13 +122,14 @@ def test_depth_scores_match_reference(ctx, body, rng, smooth):
     assert np.ptp(want) > 10, "different poses must score differently"
 
 
-def test_silhouette_and_appearance_multi_camera(ctx, body, rng):
+@pytest.mark.parametrize("path", [PATHS[0], PATHS[3]], ids="-".join)
+def test_silhouette_and_appearance_multi_camera(ctx, body, rng, path):
     skel, dofs, kin, mesh = body
     cs = cams(4, size=TILE, kind="colour")
     truth = random_poses(body, rng, 1)
     S = kin.skinning_matrices(random_poses(body, rng, 8))
     tri_bits = rng.integers(1, 2**32, size=(mesh.n_faces, 3), dtype=np.uint64).astype(np.uint32)
-    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE) as eng:
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, **path_kwargs(ctx, path)) as eng:
         obs = []
         for c, cam in enumerate(cs):
             tz, _ = ref_render(mesh, kin.skinning_matrices(truth), cam)
@@ -220,7 +235,8 @@ def test_observation_resampled_to_tile(ctx, body, rng):
     assert_close(got, want, "resampled depth")
 
 
-def test_tiles_are_clipped(ctx, body):
+@pytest.mark.parametrize("path", PATHS, ids="-".join)
+def test_tiles_are_clipped(ctx, body, path):
     """A candidate sticking out of its tile must not bleed into the neighbour tiles."""
     skel, dofs, kin, mesh = body
     cam = cams()[0]
@@ -230,7 +246,7 @@ def test_tiles_are_clipped(ctx, body):
     p[2, 2] += 30.0  # far behind the camera: nothing visible
     p[3, 0] -= 0.9
     S = kin.skinning_matrices(p)
-    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE) as eng:
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, **path_kwargs(ctx, path)) as eng:
         z, _ = eng.render_tiles(S)
     rz, _ = ref_render(mesh, S, cam)
     assert (z[2] > 0).sum() == 0
@@ -391,6 +407,7 @@ def test_info_reports_backend_and_reduction():
     info = json.loads(res.stdout)
     assert info["backend"] in ("egl", "osmesa") and info["version_code"] >= 330
     assert info["reduction"] in ("mipmap", "compute")
+    assert info["skinning"] in ("vertex", "compute") and info["tile_clip"] in ("distance", "fragment")
     assert info["max_texture_size"] >= 2048
 
 
@@ -404,3 +421,47 @@ def test_backend_choice_is_validated(monkeypatch):
     monkeypatch.setenv("GLTRACK_EGL_DEVICE", "zero")
     with pytest.raises(GLContextError, match="GLTRACK_EGL_DEVICE"):
         create_context()
+
+
+def test_skinning_paths_give_the_same_images(ctx, body, rng):
+    """Compute-pass skinning is the vertex shader's arithmetic on another stage: the same tiles."""
+    if ctx.version_code < 430:
+        pytest.skip("compute skinning needs OpenGL 4.3")
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    S = kin.skinning_matrices(random_poses(body, rng, 5))
+    tiles = {}
+    for sk in ("vertex", "compute"):
+        with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, skinning=sk) as eng:
+            tiles[sk] = eng.render_tiles(S)
+    assert np.allclose(tiles["vertex"][0], tiles["compute"][0], atol=1e-5)
+    assert np.mean(tiles["vertex"][1] == tiles["compute"][1]) > 0.999
+    # and the output follows the input: another pose, other tiles
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, skinning="compute") as eng:
+        other = eng.render_tiles(kin.skinning_matrices(random_poses(body, rng, 5)))
+    assert not np.allclose(other[0], tiles["compute"][0])
+
+
+def test_engine_path_choice():
+    from gltrack.render.engine import choose_skinning, choose_tile_clip
+
+    llvmpipe, h100 = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
+    assert choose_skinning(llvmpipe, 450) == "vertex"
+    assert choose_skinning(h100, 460) == "compute"
+    assert choose_skinning(h100, 330) == "vertex"  # no compute shaders before GL 4.3
+    assert choose_tile_clip(llvmpipe) == "distance"
+    assert choose_tile_clip(h100) == "fragment"
+
+
+def test_engine_path_env_is_validated(ctx, body, monkeypatch):
+    skel, dofs, kin, mesh = body
+    monkeypatch.setenv("GLTRACK_SKINNING", "gpu")
+    with pytest.raises(ValueError, match="GLTRACK_SKINNING"):
+        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
+    monkeypatch.delenv("GLTRACK_SKINNING")
+    monkeypatch.setenv("GLTRACK_TILE_CLIP", "scissor")
+    with pytest.raises(ValueError, match="GLTRACK_TILE_CLIP"):
+        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
+    monkeypatch.setenv("GLTRACK_TILE_CLIP", "fragment")
+    with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
+        assert eng.tile_clip == "fragment"

@@ -36,6 +36,11 @@ MODES = {
 }
 
 
+#: The engine's only path before the skinning and tile-clip choices (``ScoringEngine``'s
+#: ``skinning``, ``tile_clip``)
+OLD_PATH = ("vertex", "distance")
+
+
 def _median_time(fn, repeats):
     fn()  # warm-up: compilation, allocation, reduction choice
     times = []
@@ -104,7 +109,9 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     dict with the keys of the benchmark contract (``machine``, ``renderer``, ``triangles``,
     ``modes`` -> per-mode ``candidates_per_s``, ``baseline_candidates_per_s``, ``speedup``,
     ``max_rel_error_vs_reference``, ``bound_candidates_per_s``, ``fraction_of_bound``) plus
-    ``reduction`` per mode and forward-kinematics throughput under ``fk``.
+    ``reduction``, ``skinning``, ``tile_clip`` and ``old_path_candidates_per_s`` (the engine
+    with vertex-shader skinning and clip distances, where this machine's path differs; else
+    None) per mode, and forward-kinematics throughput under ``fk``.
     """
     from gltrack.body.dofs import make_dofs
     from gltrack.body.kinematics import Kinematics
@@ -146,26 +153,35 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
         tile, n_cams, channels = MODES[name]
         kind = "depth" if name.startswith("depth") else "colour"
         cams = _rig(n_cams, kind)
-        obs, obs_bits = [], []
-        with ScoringEngine(ctx, mesh, skel.n_joints, cams, tile=tile, reduction="fastest") as eng:
-            # Clusters accept ~3/4 of the quantised values per axis, so ~40 % of the model's pixels
-            # are colour-consistent: counts large enough for a meaningful relative error.
-            keep = rng.random((mesh.n_faces, 3, 32)) < 0.75
-            tri_bits = (keep * (1 << np.arange(32, dtype=np.uint64))).sum(-1).astype(np.uint32)
-            tri_bits[tri_bits == 0] = 1
-            for c, cam in enumerate(cams):
-                z, _ = ref.render_candidates(mesh, truth, cam.K, cam.R, cam.t, cam.width, cam.height)
-                z = z[0]
-                obs.append(z)
+        obs = [ref.render_candidates(mesh, truth, c.K, c.R, c.t, c.width, c.height)[0][0]
+               for c in cams]
+        # Clusters accept ~3/4 of the quantised values per axis, so ~40 % of the model's pixels
+        # are colour-consistent: counts large enough for a meaningful relative error.
+        keep = rng.random((mesh.n_faces, 3, 32)) < 0.75
+        tri_bits = (keep * (1 << np.arange(32, dtype=np.uint64))).sum(-1).astype(np.uint32)
+        tri_bits[tri_bits == 0] = 1
+        obs_bits = [(1 << rng.integers(0, 32, size=z.shape + (3,))).astype(np.uint32) for z in obs]
+
+        def engine(reduction="fastest", **path):
+            eng = ScoringEngine(ctx, mesh, skel.n_joints, cams, tile=tile, reduction=reduction, **path)
+            for c, z in enumerate(obs):
                 if kind == "depth":
                     eng.set_depth(c, z)
                 else:
                     eng.set_masks(c, z > 0)
-                    bits = (1 << rng.integers(0, 32, size=z.shape + (3,))).astype(np.uint32)
-                    eng.set_appearance(c, bits, tri_bits)
-                    obs_bits.append(bits)
-            eng_s = _median_time(lambda: eng.score(S, channels), repeats)
-            rate = n / eng_s
+                    eng.set_appearance(c, obs_bits[c], tri_bits)
+            return eng
+
+        # The path this machine gets, and the one every machine had before (vertex-shader
+        # skinning, clip distances) when they differ, with the same reduction: the old and new
+        # figures from one run.
+        old_rate = None
+        with engine() as eng:
+            path = (eng.skinning, eng.tile_clip)
+            rate = n / _median_time(lambda: eng.score(S, channels), repeats)
+            if path != OLD_PATH:
+                with engine(eng.reduction, skinning=OLD_PATH[0], tile_clip=OLD_PATH[1]) as old:
+                    old_rate = n / _median_time(lambda: old.score(S, channels), repeats)
             bound = _bound_rate(ctx, eng, n, repeats)
             # Engine vs the independent CPU reference on a subset of the candidates.
             k = 6 if quick else 12
@@ -188,7 +204,8 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
                         errs.append(abs(have - want) / want)
             reduction = eng.reduction
         entry = {"tile": tile, "cameras": n_cams, "channels": list(channels), "reduction": reduction,
-                 "candidates_per_s": rate, "bound_candidates_per_s": bound,
+                 "skinning": path[0], "tile_clip": path[1], "candidates_per_s": rate,
+                 "old_path_candidates_per_s": old_rate, "bound_candidates_per_s": bound,
                  "fraction_of_bound": rate / bound,
                  "max_rel_error_vs_reference": max(errs) if errs else None}
         if with_baseline:

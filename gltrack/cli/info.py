@@ -3,7 +3,8 @@ import json
 import os
 
 NAME = "info"
-HELP = "report the GL backend, renderer, version, limits and the reduction the engine will use"
+HELP = ("report the GL backend, renderer, version, limits and how the engine will skin, clip and "
+        "reduce")
 
 
 def add_arguments(p):
@@ -26,9 +27,13 @@ def run(args):
         info["egl_device"] = "GLTRACK_EGL_DEVICE / --device " + str(
             os.environ.get("GLTRACK_EGL_DEVICE") or args.device)
     try:
-        from gltrack.render.engine import batch_side, choose_reduction, target_memory
+        from gltrack.render.engine import (batch_side, choose_reduction, choose_skinning,
+                                           choose_tile_clip, target_memory)
 
         info["reduction"] = choose_reduction(ctx)
+        info["skinning"] = os.environ.get("GLTRACK_SKINNING") or choose_skinning(
+            info["renderer"], info["version_code"])
+        info["tile_clip"] = os.environ.get("GLTRACK_TILE_CLIP") or choose_tile_clip(info["renderer"])
         # the largest batch the engine scores in one pass at the depth trackers' 64-pixel tile
         side = batch_side(info["max_texture_size"], 64,
                           target_memory(info["renderer"], os.environ.get("GLTRACK_GPU_MEMORY_MB")))
