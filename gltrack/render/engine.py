@@ -894,8 +894,8 @@ def choose_skinning(renderer: str, version_code: int) -> str:
     """Where ``skinning="auto"`` skins the vertices (unless ``GLTRACK_SKINNING`` says).
 
     "compute" on a hardware GPU with GL 4.3: one pass for all cameras, on every multiprocessor
-    (measured on an NVIDIA H100, which runs vertex shaders on two of its 66 processor clusters:
-    4 cameras x 64 px 2.5x faster, one camera the same). "vertex" on a software renderer, where
+    (measured on an NVIDIA H100, where by NVIDIA's description two of 66 processor clusters can
+    run vertex shaders: 4 cameras x 64 px 2.5x faster, one camera the same). "vertex" on a software renderer, where
     the extra buffer pass costs about 10 % on one camera, and without GL 4.3.
     """
     if is_software_renderer(renderer) or int(version_code) < 430:
