@@ -465,3 +465,56 @@ def test_engine_path_env_is_validated(ctx, body, monkeypatch):
     monkeypatch.setenv("GLTRACK_TILE_CLIP", "fragment")
     with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
         assert eng.tile_clip == "fragment"
+
+
+@pytest.mark.parametrize("preset", ["full", "25", "upper"])
+def test_gpu_forward_kinematics_matches_cpu_twin(ctx, body, rng, preset):
+    """shaders/fk.comp against Kinematics.skinning_matrices, with Euler orders that differ
+    between joints, and the scores of score_poses against score on the CPU's matrices."""
+    if ctx.version_code < 430:
+        pytest.skip("GPU forward kinematics needs OpenGL 4.3")
+    from gltrack.body.skeleton import Skeleton
+
+    skel0, _, _, mesh = body
+    orders = tuple(rng.choice(["ZXY", "YXZ", "ZYX", "XYZ", "XZY", "YZX"]) for _ in skel0.orders)
+    skel = Skeleton(skel0.names, skel0.parents, skel0.offsets, skel0.ends, orders)
+    dofs = make_dofs(skel, preset)
+    kin = Kinematics(skel, dofs)
+    P = dofs.zero(skel) + rng.normal(size=(20, dofs.size)) * 0.5
+    P[:, :3] = dofs.zero(skel)[:3] + rng.normal(size=(20, 3)) * 0.05
+    P[0, 5] = 10.0  # outside the limits: clamped on both sides
+    cam = cams()[0]
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, fk="gpu") as eng:
+        eng.set_kinematics(kin)
+        got = eng.gpu_skinning(P)
+        want = kin.skinning_matrices(P, dtype=np.float64)
+        assert np.abs(got - want).max() < 2e-5
+        obs, _ = ref_render(mesh, want[:1], cam)
+        eng.set_depth(0, obs[0])
+        a = eng.score_poses(P, ["depth"])[:, 0, 0]
+        b = eng.score(want, ["depth"])[:, 0, 0]
+        assert_close(a, b, "GPU FK scores")
+        assert np.ptp(a) > 10, "different poses must score differently"
+        moved = P.copy()
+        moved[:, 0] += 0.2
+        assert np.abs(eng.gpu_skinning(moved) - got).max() > 0.1
+
+
+def test_score_poses_on_the_cpu_is_score_of_the_cpu_matrices(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    P = random_poses(body, rng, 9)
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, fk="cpu") as eng:
+        with pytest.raises(RuntimeError, match="set_kinematics"):
+            eng.score_poses(P)
+        eng.set_kinematics(kin)
+        obs, _ = ref_render(mesh, kin.skinning_matrices(P[:1]), cam)
+        eng.set_depth(0, obs[0])
+        assert np.array_equal(eng.score_poses(P), eng.score(kin.skinning_matrices(P)))
+
+
+def test_fk_env_is_validated(ctx, body, monkeypatch):
+    skel, dofs, kin, mesh = body
+    monkeypatch.setenv("GLTRACK_FK", "cuda")
+    with pytest.raises(ValueError, match="GLTRACK_FK"):
+        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)

@@ -154,6 +154,20 @@ class Kinematics:
             R[j] = s[:, li] * Ri + c[:, li] * Rj
         return R.T.reshape(N, J, 3, 3)
 
+    def joint_table(self) -> dict:
+        """What forward kinematics needs per joint, for a GPU twin (``shaders/fk.comp``).
+
+        Returns
+        -------
+        dict of ``parents`` (B,) int (-1 for the root), ``cols`` (B, 3) int (the parameter column
+        of each Euler slot, first letter first; ``D`` = a locked axis), ``axes`` (B, 3) int
+        (0 = x, 1 = y, 2 = z), ``offsets`` (B, 3) and ``rest`` (B, 3) float, metres.
+        """
+        axes = np.array([["XYZ".index(ch) for ch in order.upper()] for order in self.skeleton.orders])
+        return {"parents": np.asarray(self.skeleton.parents, dtype=np.int64), "cols": self._slot_cols.copy(),
+                "axes": axes, "offsets": np.asarray(self.skeleton.offsets, dtype=np.float64),
+                "rest": np.asarray(self.rest, dtype=np.float64)}
+
     def _slot_tables(self, joints: tuple | None):
         """Angle columns (J, 3) of ``joints`` (all when None) and, per Euler slot from the last
         letter to the first, the flat columns (J, 3) of the two rows its rotation mixes."""

@@ -171,6 +171,7 @@ class DepthLikelihood:
         self.engine = ScoringEngine(self.ctx, self.body.mesh, self.body.skeleton.n_joints, [camera],
                                     tile=self.tile, depth_params=self.params,
                                     programs=self.programs)
+        self.engine.set_kinematics(self.body.kin)
         self.view = camera
 
     def set_view(self, z, points, margin: float) -> None:
@@ -204,7 +205,7 @@ class DepthLikelihood:
 
     def cost(self, X: np.ndarray) -> np.ndarray:
         """(N,) depth cost of N poses (N, D) against the uploaded view, in ``area_unit``s."""
-        return self.engine.score(self.body.skinning(X), ["depth"])[:, 0, 0] * self.weight
+        return self.engine.score_poses(X, ["depth"])[:, 0, 0] * self.weight
 
     def release(self) -> None:
         if self.engine is not None:

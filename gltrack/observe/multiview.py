@@ -150,6 +150,7 @@ class SilhouetteLikelihood:
         self.body, self.obs = body, observation
         self.engine = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, observation.pinholes,
                                     tile=tile)
+        self.engine.set_kinematics(body.kin)
         self.blocking = blocking
         self.env = (EnvironmentLayers(ctx, observation.pinholes, programs=self.engine.programs)
                     if blocking == "layers" else None)
@@ -227,7 +228,7 @@ class SilhouetteLikelihood:
 
     def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Silhouette error e_S (N,) and appearance count c_A (N,) or None, summed over cameras."""
-        r = self.engine.score(self.body.skinning(np.atleast_2d(X)), self.channels)
+        r = self.engine.score_poses(np.atleast_2d(X), self.channels)
         e_s = r[:, :, 1].sum(axis=1)
         c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
         return e_s, c_a

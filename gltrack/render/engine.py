@@ -276,6 +276,11 @@ class ScoringEngine:
         frustum (``gl_ClipDistance``), "fragment" drops the fragments that fall outside the tile
         (``shaders/model.frag``). The same pixels are covered either way. "auto":
         ``GLTRACK_TILE_CLIP`` when it is set, else :func:`choose_tile_clip`.
+    fk : {"auto", "cpu", "gpu"}
+        Where :meth:`score_poses` computes the skinning matrices from pose parameters: "cpu"
+        with :class:`gltrack.body.kinematics.Kinematics` (float64), "gpu" in a compute pass
+        (``shaders/fk.comp``, float32; GL 4.3). "auto": ``GLTRACK_FK`` when it is set, else
+        "cpu" (the GPU pass is not yet measured on a GPU).
     """
 
     def __init__(self, ctx: moderngl.Context, mesh: BodyMesh, n_bones: int, cameras, *, tile: int = 64,
@@ -283,7 +288,7 @@ class ScoringEngine:
                  depth_params: DepthCostParams = DepthCostParams(), custom: CustomCost | None = None,
                  near: float = 0.05, far: float = 50.0, cull_back_faces: bool = True,
                  programs: ProgramCache | None = None, skinning: str = "auto",
-                 tile_clip: str = "auto"):
+                 tile_clip: str = "auto", fk: str = "auto"):
         if tile < 16 or tile > 512 or tile & (tile - 1):
             raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
         if reduction not in ("auto", "mipmap", "compute", "fastest"):
@@ -307,6 +312,12 @@ class ScoringEngine:
         if tile_clip not in ("distance", "fragment"):
             raise ValueError(f"tile_clip must be auto, distance or fragment (also GLTRACK_TILE_CLIP), "
                              f"got {tile_clip!r}")
+        if fk == "auto":
+            fk = os.environ.get("GLTRACK_FK") or "cpu"
+        if fk not in ("cpu", "gpu"):
+            raise ValueError(f"fk must be auto, cpu or gpu (also GLTRACK_FK), got {fk!r}")
+        if fk == "gpu" and ctx.version_code < 430:
+            raise ValueError(f"GPU forward kinematics needs OpenGL 4.3; this context is {ctx.version_code}")
         if not cameras:
             raise ValueError("at least one camera is needed")
         if mesh.joints.max() >= n_bones:
@@ -321,6 +332,9 @@ class ScoringEngine:
         self.cull_back_faces = bool(cull_back_faces)
         self.skinning = skinning
         self.tile_clip = tile_clip
+        self.fk = fk
+        self.kin = None  # set_kinematics
+        self._joints_buf = None
         limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096))
         memory = target_memory(ctx.info.get("GL_RENDERER", ""), os.environ.get("GLTRACK_GPU_MEMORY_MB"))
         self._memory = memory
@@ -379,13 +393,33 @@ class ScoringEngine:
         self._prog_fs = None
         self._vao_fs = None
 
+    def _run_fk(self, t, P, n):
+        data = P.tobytes()
+        if t.get("params") is None or t["params"].size < len(data):
+            if t.get("params") is not None:
+                t["params"].release()
+            t["params"] = self.ctx.buffer(reserve=t["bones"].height * P.shape[1] * 4)
+        t["params"].write(data)
+        prog = self._prog_fk
+        prog["n_params"].value = int(P.shape[1])
+        prog["n_candidates"].value = int(n)
+        self._joints_buf.bind_to_storage_buffer(5)
+        t["params"].bind_to_storage_buffer(6)
+        t["bones"].bind_to_image(0, read=False, write=True)
+        prog.run(-(-n // 64), 1, 1)
+        self.ctx.memory_barrier()
+
     def _skinned_bytes_per_candidate(self) -> int:
         return int(self.mesh.vertices.shape[0]) * 16
 
-    def _upload_batch(self, t, S, n):
-        """The batch's skinning matrices into the bones texture, and with compute skinning the
-        skinned vertices of every candidate into ``t["skinned"]`` (once for all cameras)."""
-        t["bones"].write(S.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
+    def _upload_batch(self, t, X, n, poses=False):
+        """The batch's skinning matrices into the bones texture (uploaded, or with ``poses``
+        computed from the parameters ``X`` by ``shaders/fk.comp``), and with compute skinning
+        the skinned vertices of every candidate into ``t["skinned"]`` (once for all cameras)."""
+        if poses:
+            self._run_fk(t, X, n)
+        else:
+            t["bones"].write(X.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
         if self.skinning != "compute":
             return
         prog, nv = self._prog_skin, int(self.mesh.vertices.shape[0])
@@ -462,7 +496,8 @@ class ScoringEngine:
 
     @staticmethod
     def _release_target(t):
-        for k in ("fbo", "fbo_z", "cost_fbo", "z", "zt", "depth", "cost", "bones", "sums", "skinned"):
+        for k in ("fbo", "fbo_z", "cost_fbo", "z", "zt", "depth", "cost", "bones", "sums", "skinned",
+                  "params"):
             if t.get(k) is not None:
                 t[k].release()
 
@@ -582,6 +617,61 @@ class ScoringEngine:
         requested are 0): depth cost (or, with ``"model"``, the model's unblocked pixel
         count), silhouette XOR count, appearance count, custom cost (see :data:`SLOTS`).
         """
+        channels = self._check_channels(channels)
+        S = np.asarray(skinning)
+        if S.ndim != 4 or S.shape[1:] != (self.n_bones, 3, 4):
+            raise ValueError(f"skinning must have shape (N, {self.n_bones}, 3, 4), got {S.shape}")
+        if not np.all(np.isfinite(S)):
+            raise ValueError("skinning matrices contain NaN or inf")
+        return self._score_all(np.ascontiguousarray(S, dtype=np.float32), channels, poses=False)
+
+    def set_kinematics(self, kin) -> None:
+        """The body's kinematics, for :meth:`score_poses`.
+
+        Parameters
+        ----------
+        kin : gltrack.body.kinematics.Kinematics, with ``n_bones`` joints
+        """
+        if kin.skeleton.n_joints != self.n_bones:
+            raise ValueError(f"kinematics has {kin.skeleton.n_joints} joints, the engine {self.n_bones} bones")
+        self.kin = kin
+        if self.fk != "gpu":
+            return
+        tab = kin.joint_table()
+        rec = np.zeros(self.n_bones, dtype=[("parent_cols", "i4", 4), ("axes", "i4", 4),
+                                            ("offset", "f4", 4), ("rest", "f4", 4)])
+        rec["parent_cols"][:, 0] = tab["parents"]
+        rec["parent_cols"][:, 1:] = tab["cols"]
+        rec["axes"][:, :3] = tab["axes"]
+        rec["offset"][:, :3] = tab["offsets"]
+        rec["rest"][:, :3] = tab["rest"]
+        if self._joints_buf is not None:
+            self._joints_buf.release()
+        self._joints_buf = self.ctx.buffer(rec.tobytes())
+        self._prog_fk = self.programs.get(compute="fk.comp", defines={"N_JOINTS": self.n_bones})
+
+    def score_poses(self, params, channels=("depth",)) -> np.ndarray:
+        """Score candidate poses (clamped to the joint limits) as :meth:`score` does.
+
+        Parameters
+        ----------
+        params : (N, D) or (D,) float, pose parameters of the kinematics given to
+            :meth:`set_kinematics`
+        channels : sequence of str, as :meth:`score`
+
+        Returns
+        -------
+        (N, C, 4) float64, as :meth:`score`
+        """
+        if self.kin is None:
+            raise RuntimeError("score_poses needs set_kinematics first")
+        if self.fk == "cpu":
+            return self.score(self.kin.skinning_matrices(params), channels)
+        channels = self._check_channels(channels)
+        P = self.kin.dofs.validate(params)  # clamped, float64, finite
+        return self._score_all(np.ascontiguousarray(P, dtype=np.float32), channels, poses=True)
+
+    def _check_channels(self, channels) -> tuple:
         if self._released:
             raise RuntimeError("ScoringEngine has been released")
         channels = tuple(channels)
@@ -592,11 +682,6 @@ class ScoringEngine:
             raise ValueError("channels 'depth' and 'model' share a slot; ask for one of them")
         if "custom" in channels and self.custom is None:
             raise ValueError("channel 'custom' needs a CustomCost shader")
-        S = np.asarray(skinning)
-        if S.ndim != 4 or S.shape[1:] != (self.n_bones, 3, 4):
-            raise ValueError(f"skinning must have shape (N, {self.n_bones}, 3, 4), got {S.shape}")
-        if not np.all(np.isfinite(S)):
-            raise ValueError("skinning matrices contain NaN or inf")
         for v in self.views:
             need = {"depth": v.obs_z, "silhouette": v.obs_mask, "appearance": v.obs_bits,
                     "model": v.obs_mask}
@@ -605,23 +690,28 @@ class ScoringEngine:
                 missing.append("appearance (needs set_masks for the blocking mask)")
             if missing:
                 raise ValueError(f"camera {v.camera.name!r}: no observation uploaded for {missing}")
+        return channels
+
+    def _score_all(self, X, channels, poses):
+        """Score skinning matrices (N, B, 3, 4) or, with ``poses``, pose parameters (N, D), both
+        float32 and checked, in batches of at most :attr:`max_batch`."""
         t0 = time.perf_counter()
-        N = S.shape[0]
+        N = X.shape[0]
         out = np.zeros((N, len(self.views), 4))
-        S = np.ascontiguousarray(S, dtype=np.float32)
         for start in range(0, N, self.max_batch):
-            out[start:start + self.max_batch] = self._score_batch(S[start:start + self.max_batch], channels)
+            out[start:start + self.max_batch] = self._score_batch(X[start:start + self.max_batch],
+                                                                  channels, poses)
         self.evaluations += N
         ENGINE_STATS.calls += 1
         ENGINE_STATS.candidates += N
         ENGINE_STATS.seconds += time.perf_counter() - t0
         return out
 
-    def _score_batch(self, S, channels):
-        n = S.shape[0]
+    def _score_batch(self, X, channels, poses=False):
+        n = X.shape[0]
         cols, rows = grid_for(n, self.max_tiles_side)
         t = self._target(cols, rows)
-        self._upload_batch(t, S, n)
+        self._upload_batch(t, X, n, poses)
         if self._auto_pending:
             self._auto_pending = False
             self.reduction = self._time_reductions(t, n, cols, rows, channels)
@@ -786,6 +876,29 @@ class ScoringEngine:
         return best
 
     # ------------------------------------------------------------------------------ utilities
+    def gpu_skinning(self, params) -> np.ndarray:
+        """Test helper: the skinning matrices ``shaders/fk.comp`` computes for ``params``.
+
+        Parameters
+        ----------
+        params : (N, D) float, at most :attr:`max_batch` poses (clamped as :meth:`score_poses`)
+
+        Returns
+        -------
+        (N, B, 3, 4) float32, as ``Kinematics.skinning_matrices`` (its CPU twin)
+        """
+        if self.fk != "gpu" or self.kin is None:
+            raise RuntimeError("gpu_skinning needs fk='gpu' and set_kinematics")
+        P = np.ascontiguousarray(self.kin.dofs.validate(params), dtype=np.float32)
+        n = P.shape[0]
+        if n > self.max_batch:
+            raise ValueError(f"gpu_skinning takes at most {self.max_batch} poses")
+        cols, rows = grid_for(n, self.max_tiles_side)
+        t = self._target(cols, rows)
+        self._run_fk(t, P, n)
+        raw = np.frombuffer(t["bones"].read(), np.float32).reshape(cols * rows, self.n_bones, 3, 4)
+        return raw[:n].copy()
+
     def render_tiles(self, skinning, cam: int = 0):
         """Debug/test helper: the rendered model depth and triangle-id tiles of a batch.
 
@@ -825,7 +938,7 @@ class ScoringEngine:
                 if tex is not None:
                     tex.release()
         for obj in (*self._vao.values(), *self._skin_in, self._vbo_pos, self._vbo_j, self._vbo_w,
-                    self._ibo):
+                    self._ibo, *([self._joints_buf] if self._joints_buf is not None else [])):
             obj.release()
         if self._owns_programs:
             self.programs.release()
