@@ -408,6 +408,7 @@ def test_info_reports_backend_and_reduction():
     assert info["backend"] in ("egl", "osmesa") and info["version_code"] >= 330
     assert info["reduction"] in ("mipmap", "compute")
     assert info["skinning"] in ("vertex", "compute") and info["tile_clip"] in ("distance", "fragment")
+    assert info["fk"] in ("cpu", "gpu")
     assert info["max_texture_size"] >= 2048
 
 

@@ -3,8 +3,8 @@ import json
 import os
 
 NAME = "info"
-HELP = ("report the GL backend, renderer, version, limits and how the engine will skin, clip and "
-        "reduce")
+HELP = ("report the GL backend, renderer, version, limits and how the engine will run forward "
+        "kinematics, skin, clip and reduce")
 
 
 def add_arguments(p):
@@ -34,6 +34,7 @@ def run(args):
         info["skinning"] = os.environ.get("GLTRACK_SKINNING") or choose_skinning(
             info["renderer"], info["version_code"])
         info["tile_clip"] = os.environ.get("GLTRACK_TILE_CLIP") or choose_tile_clip(info["renderer"])
+        info["fk"] = os.environ.get("GLTRACK_FK") or "cpu"  # where score_poses runs FK
         # the largest batch the engine scores in one pass at the depth trackers' 64-pixel tile
         side = batch_side(info["max_texture_size"], 64,
                           target_memory(info["renderer"], os.environ.get("GLTRACK_GPU_MEMORY_MB")))
