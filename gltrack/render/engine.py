@@ -297,27 +297,13 @@ class ScoringEngine:
         if reduction == "compute" and ctx.version_code < 430:
             raise ValueError("compute reduction needs OpenGL 4.3; this context is "
                              f"{ctx.version_code}")
-        if skinning == "auto":
-            skinning = (os.environ.get("GLTRACK_SKINNING")
-                        or choose_skinning(ctx.info.get("GL_RENDERER", ""), ctx.version_code))
-        if skinning not in ("vertex", "compute"):
-            raise ValueError(f"skinning must be auto, vertex or compute (also GLTRACK_SKINNING), "
-                             f"got {skinning!r}")
-        if skinning == "compute" and ctx.version_code < 430:
-            raise ValueError("compute skinning needs OpenGL 4.3; this context is "
-                             f"{ctx.version_code}")
-        if tile_clip == "auto":
-            tile_clip = (os.environ.get("GLTRACK_TILE_CLIP")
-                         or choose_tile_clip(ctx.info.get("GL_RENDERER", "")))
-        if tile_clip not in ("distance", "fragment"):
-            raise ValueError(f"tile_clip must be auto, distance or fragment (also GLTRACK_TILE_CLIP), "
-                             f"got {tile_clip!r}")
-        if fk == "auto":
-            fk = os.environ.get("GLTRACK_FK") or "cpu"
-        if fk not in ("cpu", "gpu"):
-            raise ValueError(f"fk must be auto, cpu or gpu (also GLTRACK_FK), got {fk!r}")
-        if fk == "gpu" and ctx.version_code < 430:
-            raise ValueError(f"GPU forward kinematics needs OpenGL 4.3; this context is {ctx.version_code}")
+        renderer = ctx.info.get("GL_RENDERER", "")
+        skinning = _engine_option(ctx, "skinning", skinning, "GLTRACK_SKINNING",
+                                  choose_skinning(renderer, ctx.version_code), ("vertex", "compute"),
+                                  needs_430="compute")
+        tile_clip = _engine_option(ctx, "tile_clip", tile_clip, "GLTRACK_TILE_CLIP",
+                                   choose_tile_clip(renderer), ("distance", "fragment"))
+        fk = _engine_option(ctx, "fk", fk, "GLTRACK_FK", "cpu", ("cpu", "gpu"), needs_430="gpu")
         if not cameras:
             raise ValueError("at least one camera is needed")
         if mesh.joints.max() >= n_bones:
@@ -876,6 +862,13 @@ class ScoringEngine:
         return best
 
     # ------------------------------------------------------------------------------ utilities
+    def _single_batch_target(self, n: int, caller: str):
+        """The render targets of one batch of ``n`` candidates, and its grid (cols, rows)."""
+        if n > self.max_batch:
+            raise ValueError(f"{caller} takes at most {self.max_batch} candidates")
+        cols, rows = grid_for(n, self.max_tiles_side)
+        return self._target(cols, rows), cols, rows
+
     def gpu_skinning(self, params) -> np.ndarray:
         """Test helper: the skinning matrices ``shaders/fk.comp`` computes for ``params``.
 
@@ -891,10 +884,7 @@ class ScoringEngine:
             raise RuntimeError("gpu_skinning needs fk='gpu' and set_kinematics")
         P = np.ascontiguousarray(self.kin.dofs.validate(params), dtype=np.float32)
         n = P.shape[0]
-        if n > self.max_batch:
-            raise ValueError(f"gpu_skinning takes at most {self.max_batch} poses")
-        cols, rows = grid_for(n, self.max_tiles_side)
-        t = self._target(cols, rows)
+        t, cols, rows = self._single_batch_target(n, "gpu_skinning")
         self._run_fk(t, P, n)
         raw = np.frombuffer(t["bones"].read(), np.float32).reshape(cols * rows, self.n_bones, 3, 4)
         return raw[:n].copy()
@@ -908,10 +898,7 @@ class ScoringEngine:
         """
         S = np.ascontiguousarray(skinning, dtype=np.float32)
         n = S.shape[0]
-        if n > self.max_batch:
-            raise ValueError(f"render_tiles takes at most {self.max_batch} candidates")
-        cols, rows = grid_for(n, self.max_tiles_side)
-        t = self._target(cols, rows)
+        t, cols, rows = self._single_batch_target(n, "render_tiles")
         self._upload_batch(t, S, n)
         self._render(t, self._check_view(cam), n, cols, rows)
         T = self.tile
@@ -996,6 +983,20 @@ def silhouette_overlap(model_px, foreground_px, xor_px):
             return np.where(den > 0, np.clip(inter / np.where(den > 0, den, 1.0), 0.0, 1.0),
                             np.nan)
     return share(0.5 * (m + f + x)), share(m), share(f)
+
+
+def _engine_option(ctx, name: str, value: str, env: str, auto: str, allowed: tuple,
+                   needs_430: str | None = None) -> str:
+    """One of the engine's path options: ``value``, or for "auto" the environment variable
+    ``env`` when it is set, else ``auto``; checked against ``allowed``; the choice
+    ``needs_430`` needs a GL 4.3 context (compute shaders)."""
+    if value == "auto":
+        value = os.environ.get(env) or auto
+    if value not in allowed:
+        raise ValueError(f"{name} must be auto, {' or '.join(allowed)} (also {env}), got {value!r}")
+    if value == needs_430 and ctx.version_code < 430:
+        raise ValueError(f"{name}={value!r} needs OpenGL 4.3; this context is {ctx.version_code}")
+    return value
 
 
 def is_software_renderer(renderer: str) -> bool:
