@@ -191,6 +191,31 @@ def test_partitions_cover_every_dof_once(preset):
                for i in p["torso"])
 
 
+@pytest.mark.parametrize("preset", ["full", "25", "upper"])
+def test_exchanged_limbs_are_the_mirror_image(preset, rng):
+    """Legs and arms exchanged through limb_pairs: with the torso straight, the pose's joints
+    are the mirror image (x -> -x in the body frame) of the original's, left and right
+    swapped; exchanging twice gives the pose back."""
+    from gltrack.body.kinematics import Kinematics
+    from gltrack.sample.partitions import exchange_limbs, limb_pairs
+
+    dofs = make_dofs(SKEL, preset)
+    kin = Kinematics(SKEL, dofs)
+    pairs = limb_pairs(dofs)
+    assert pairs
+    x = dofs.zero(SKEL) + rng.normal(size=dofs.size) * 0.4
+    x[default_partitions(dofs)["torso"]] = 0.0  # pelvis at the origin, unturned; spine straight
+    y = exchange_limbs(x, pairs)
+    assert np.allclose(exchange_limbs(y, pairs), x)
+    px, py = kin.forward(x, clamp=False).positions[0], kin.forward(y, clamp=False).positions[0]
+    side = {"l_": "r_", "r_": "l_"}
+    swap = [SKEL.index(side[n[:2]] + n[2:]) if n[:2] in side else j for j, n in enumerate(SKEL.names)]
+    mirrored = px[swap] * [-1.0, 1.0, 1.0]
+    limbs = [j for j, n in enumerate(SKEL.names) if n[:2] in side]
+    assert np.allclose(py[limbs], mirrored[limbs], atol=1e-9)
+    assert not np.allclose(py[limbs], px[limbs])  # a random pose is no mirror image of itself
+
+
 # ---------------------------------------------------------------- filters
 def _samplers(budget):
     hps = HierarchicalSampler.from_dofs(DOFS, 30)

@@ -438,3 +438,53 @@ def test_a_start_pose_that_left_the_person_is_not_used():
     assert kept[:, 0].tolist() == [0.1, -0.4] and c.tolist() == [50.0, 40.0]
     far = X[[1, 3]]
     assert near_home(far, cost[[1, 3]], np.zeros(3), 1.0)[0] is far  # nothing near: all kept
+
+
+
+
+def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch):
+    """A walker in mid-stride (left leg and right arm forward) and a pose library that holds
+    only the mirror-image stride: the refinement keeps the wrong leg forward, and only the
+    start's limb exchange (each heading's best refined pose mirrored and refined again) offers
+    the right one among the start hypotheses. Without the exchange no hypothesis has it."""
+    import gltrack.track.multiview as mv
+    from gltrack.data.dataset import Dataset
+    from gltrack.sample.partitions import exchange_limbs, limb_pairs
+
+    body = BodyModel.build()
+    d, sk = body.dofs, body.skeleton
+    P = d.zero(sk)[None].copy()
+    for name, value in (("l_hip_rx", -0.55), ("r_hip_rx", 0.4), ("r_knee_rx", 0.6),
+                        ("l_knee_rx", 0.15), ("l_shoulder_rz", -1.25), ("r_shoulder_rz", 1.25),
+                        ("r_shoulder_rx", -0.5), ("l_shoulder_rx", 0.45)):
+        P[:, d.index(name)] = value
+    P = d.validate(P)
+    mirror = d.validate(exchange_limbs(P, limb_pairs(d)))
+    monkeypatch.setattr(mv, "canonical_poses", lambda dofs, skeleton=None: (["stride"], mirror))
+    cams = ring_cameras((0.1, 0.9, 0.2), **dict(RING, radius=3.0))
+    render_dataset(tmp_path / "ds", body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
+    want = body.joints(P)[0]
+
+    def right_way(x):
+        """Facing the right way (a body turned round with the mirror-image stride puts its
+        ankles where the truth's are) with each ankle nearer its own side's truth."""
+        got = body.joints(x[None])[0]
+        l, r = sk.index("l_ankle"), sk.index("r_ankle")
+        facing = np.cos(x[d.index("pelvis_ry")] - P[0, d.index("pelvis_ry")]) > 0
+        return facing and (np.linalg.norm(got[l] - want[l]) + np.linalg.norm(got[r] - want[r])
+                           < np.linalg.norm(got[l] - want[r]) + np.linalg.norm(got[r] - want[l]))
+
+    def hypotheses():
+        # one heading, the true one (and its turned-round twin): only the legs are in question
+        tr = mv.HPSTracker(Dataset.open(tmp_path / "ds"), body, ctx,
+                           mv.HpsOptions(particles=100, init_headings=1), np.random.default_rng(0))
+        try:
+            return tr.start_hypotheses(0)
+        finally:
+            tr.close()
+
+    found = [x for x in hypotheses() if right_way(x)]
+    assert found
+    assert min(np.linalg.norm(body.joints(x[None])[0] - want, axis=1).mean() for x in found) < 0.12
+    monkeypatch.setattr(mv, "limb_pairs", lambda dofs: [])  # the start without the exchange
+    assert not any(right_way(x) for x in hypotheses())

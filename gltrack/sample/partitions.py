@@ -78,3 +78,27 @@ def hill_climb_order(dofs, *, group_limbs: bool = True) -> list:
     else:
         order.extend(int(i) for limb in limbs for i in limb)
     return order
+
+
+def limb_pairs(dofs) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The legs, then the arms (where the preset has both sides), as ``(left, right, sign)``:
+    the DOF indices of each side (in the same joint and axis order) and the sign each DOF's
+    angle takes on the other side (+1 about x, -1 about y and z: a mirror image through the
+    body's sagittal plane, whose normal is the body's x axis)."""
+    parts = default_partitions(dofs)
+    pairs = []
+    for a, b in (("l_leg", "r_leg"), ("l_arm", "r_arm")):
+        if a in parts and b in parts:
+            left, right = parts[a], parts[b]
+            sign = np.array([1.0 if dofs.names[i].endswith("_rx") else -1.0 for i in left])
+            pairs.append((left, right, sign))
+    return pairs
+
+
+def exchange_limbs(x, pairs) -> np.ndarray:
+    """Pose(s) ``x`` (D,) or (N, D) with each pair of :func:`limb_pairs` exchanged, mirrored:
+    a stride with the left leg forward becomes one with the right leg forward. Not clamped."""
+    y = np.array(x, dtype=np.float64)
+    for left, right, sign in pairs:
+        y[..., left], y[..., right] = sign * x[..., right], sign * x[..., left]
+    return y

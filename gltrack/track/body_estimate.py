@@ -94,7 +94,8 @@ from gltrack.observe.multiview import MultiviewObservation
 from gltrack.observe.voxels import carve
 from gltrack.render.engine import DepthCostParams, ScoringEngine
 from gltrack.sample.hillclimb import hill_climb
-from gltrack.sample.partitions import LIMBS, default_partitions, hill_climb_order
+from gltrack.sample.partitions import (LIMBS, default_partitions, exchange_limbs,
+                                      hill_climb_order, limb_pairs)
 
 from .base import NoPersonError
 
@@ -510,12 +511,7 @@ class _Search:
                                           for e in self.order) if g]
         self.parts = default_partitions(dofs)
         self.library = canonical_poses(dofs)[1]
-        self.pairs = []
-        for a, b in (("l_leg", "r_leg"), ("l_arm", "r_arm")):
-            if a in self.parts and b in self.parts:
-                left, right = self.parts[a], self.parts[b]
-                sign = np.array([1.0 if dofs.names[i].endswith("_rx") else -1.0 for i in left])
-                self.pairs.append((left, right, sign))
+        self.pairs = limb_pairs(dofs)
         self.evaluations = 0
         self.poses = []
         self.shape = None
@@ -579,10 +575,7 @@ class _Search:
     def _swapped(self, x, pair):
         """``x`` with the DOFs of limbs ``pair`` (left indices, right indices) exchanged and
         mirrored (rotations about y and z change sign), clamped to the limits."""
-        left, right, sign = pair
-        y = np.array(x, dtype=np.float64)
-        y[left], y[right] = sign * x[right], sign * x[left]
-        return self.dofs.validate(y)[0]
+        return self.dofs.validate(exchange_limbs(x, [pair]))[0]
 
     def settle(self, k: int, x) -> np.ndarray:
         """The best of pose ``x``, ``x`` turned by half a turn (a silhouette or a depth surface

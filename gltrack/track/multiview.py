@@ -89,6 +89,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             SIRFilter, StateSpace, bandouch_weights, cost_weights,
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
+from gltrack.sample.partitions import exchange_limbs, limb_pairs
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
@@ -443,7 +444,9 @@ class MultiviewTracker(Tracker):
         volume centroid on the centroid of the frame's visual hull and scored by its silhouette
         error; each of the ``init_keep`` best is refined on its own by Bandouch's hierarchical
         sampler (``init_rounds`` steps on the frame, whatever the method), and the refined pose
-        (best particle or estimate) with the lowest silhouette error starts the tracker.
+        (best particle or estimate) with the lowest silhouette error starts the tracker. The
+        best refined pose of each heading is also tried with its legs and arms exchanged
+        (mirrored), refined the same way.
 
         Why each on its own: a silhouette fits about as well turned by 180 degrees, and one
         particle set seeded at both headings often settled on the wrong one (3 of 6 runs on the
@@ -459,6 +462,7 @@ class MultiviewTracker(Tracker):
             The cameras' foreground masks do not meet in the tracking volume (no person).
         """
         o, d = self.opt, self.body.dofs
+        yaw = d.index("pelvis_ry")
         images, masks = self.obs(frame)
         volume = default_volume(self.obs.pinholes)
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=2, distort=False)
@@ -481,26 +485,40 @@ class MultiviewTracker(Tracker):
         seeds = P[np.argsort(e_s)[:o.init_keep]]
         # each seed also turned round: a silhouette fits about as well either way
         twins = seeds.copy()
-        twins[:, d.index("pelvis_ry")] += np.pi
+        twins[:, yaw] += np.pi
         seeds = np.concatenate([seeds, d.validate(twins)])
         n = max(self.n // len(seeds), 50)
         refiner, _ = make_sampler("hps", d, self.fps, HpsOptions(sigma_scale=o.sigma_scale))
-        final = [seeds[0]]
-        for seed in seeds:
+
+        def refine(seed):  # the best particle and the estimate after init_rounds steps
             X = np.repeat(seed[None], n, axis=0)
             for _ in range(o.init_rounds):
                 res = refiner.step(X, self.weights, self.rng)
                 X = res.particles
-            final += [res.best, res.estimate]
+            return [res.best, res.estimate]
+
+        final = [seeds[0]]
+        for seed in seeds:
+            final += refine(seed)
         final = d.validate(np.stack(final))
         e_final = self.likelihood.scores(final)[0]
+        # The best refined pose of each heading (and its turned-round twin) with the legs and
+        # arms exchanged (mirrored), refined the same way: a refinement from a standing library
+        # pose settles a stride with either leg forward, a silhouette fits either about as
+        # well, and a local search seldom goes from one to the other.
+        pairs = limb_pairs(d)
+        if pairs:
+            mirrors = d.validate(exchange_limbs(np.stack(two_modes(final, e_final, yaw)), pairs))
+            more = np.concatenate([mirrors, d.validate(np.stack([p for m in mirrors for p in refine(m)]))])
+            final = np.concatenate([final, more])
+            e_final = np.concatenate([e_final, self.likelihood.scores(more)[0]])
         # a refined pose that left the hull has explained the person away (masks that miss
         # much of the person, e.g. a still torso, make a model out of view score well): it may
         # not start the tracker while one near the person does
         final, e_final = near_home(final, e_final, seeds[:, :3].mean(axis=0), self.INIT_MAX_SHIFT)
         log.info("auto init: %d placed poses (best silhouette error %.0f px), refined to %.0f px",
                  len(P), e_s.min(), e_final.min())
-        return two_modes(final, e_final, d.index("pelvis_ry"))
+        return two_modes(final, e_final, yaw)
 
     # -- tracking -------------------------------------------------------------------------
     def start(self, frame, params, velocity=None):
