@@ -98,7 +98,8 @@ def limb_pairs(dofs) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
 def exchange_limbs(x, pairs) -> np.ndarray:
     """Pose(s) ``x`` (D,) or (N, D) with each pair of :func:`limb_pairs` exchanged, mirrored:
     a stride with the left leg forward becomes one with the right leg forward. Not clamped."""
-    y = np.array(x, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    y = x.copy()
     for left, right, sign in pairs:
         y[..., left], y[..., right] = sign * x[..., right], sign * x[..., left]
     return y
