@@ -56,8 +56,7 @@ from gltrack.observe.depth import foreground_points
 from gltrack.observe.depth_view import DepthLikelihood, DepthObservation
 from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb, hill_climb_lanes, stage_climb
-from gltrack.sample.partitions import (default_partitions, exchange_limbs, hill_climb_order,
-                                      limb_pairs)
+from gltrack.sample.partitions import default_partitions, hill_climb_order
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
@@ -474,8 +473,7 @@ class HillClimbDepthTracker(Tracker):
         ``init_keep`` best, and each turned round by 180 degrees, is hill-climbed on its own
         without the motion prior (three
         coarse-to-fine passes with a grid of 6 sigmas, halved each pass, the root +-0.3 m, each
-        with two extra limb sweeps); each heading's best is climbed once more with its legs and
-        arms exchanged (mirrored), and the lowest cost starts the tracker.
+        with two extra limb sweeps) and the lowest cost starts the tracker.
 
         Why the extra limb sweeps: seen side-on, the body at the right heading got stuck with an
         arm behind the torso (cost 9.5 against 4.7 for the mirror-image heading, 290 mm off);
@@ -516,7 +514,8 @@ class HillClimbDepthTracker(Tracker):
         # body estimate that starts from it was measured worse with the centres skipped (four
         # simulated depth subjects, 1.62-1.92 m: 6-47 mm off in height, mean 23, against 5-27,
         # mean 13)
-        def climb(x):
+        X, costs = [], []
+        for x in seeds:
             wide = 6.0 * self.sigma
             wide[:3] = 0.3
             for _ in range(3):  # no prior: there is no motion to predict from yet
@@ -526,19 +525,9 @@ class HillClimbDepthTracker(Tracker):
                 res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0, stages="chain",
                                   rescore_centre=True)
                 x, wide = res.x, wide * 0.5
-            return x, float(res.cost)
-
-        X, costs = map(list, zip(*[climb(x) for x in seeds]))
-        # each heading's best climbed pose also with the legs and arms exchanged (mirrored) and
-        # climbed again: a stride with the other leg forward fits a depth surface about as well
-        # and a climb seldom goes from one to the other (as the multi-view start)
-        pairs = limb_pairs(d)
-        if pairs:
-            for m in two_modes(X, costs, d.index("pelvis_ry")):
-                x, c = climb(d.validate(exchange_limbs(m, pairs))[0])
-                X.append(x)
-                costs.append(c)
-        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(X),
+            X.append(x)
+            costs.append(float(res.cost))
+        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
                  min(costs))
         return two_modes(X, costs, d.index("pelvis_ry"))
 
