@@ -326,3 +326,56 @@ def test_a_wrong_start_file_is_checked_against_the_automatic_start(tmp_path):
         err[check] = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean(1)
     assert err[False][0] > 0.1, err[False]  # the given start, as given
     assert err[True][0] < 0.5 * err[False][0] and err[True].mean() < 0.06, err[True]
+
+
+@pytest.mark.parametrize("turn", [0.0, np.pi / 2])
+def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch, turn):
+    """A walker in mid-stride (left leg and right arm forward), face-on and side-on to the
+    depth camera, and a pose library that holds only the mirror-image stride: only the start's
+    limb exchange (``init_exchange``: each heading's best climbed pose mirrored and climbed
+    again) offers a start hypothesis facing the right way with the legs on the right sides.
+    Without the exchange none does."""
+    import gltrack.track.depth as dt
+    from gltrack.body.model import BodyModel, body_to_meta
+    from gltrack.camera import depth_camera_sr4000
+    from gltrack.data.dataset import DatasetWriter
+    from gltrack.render import reference as ref
+    from gltrack.sample.partitions import exchange_limbs, limb_pairs
+
+    body = BodyModel.build()
+    d, sk = body.dofs, body.skeleton
+    P = d.zero(sk)[None].copy()
+    P[:, :3] = (0.0, 0.95, 0.0)
+    for name, value in (("l_hip_rx", -0.55), ("r_hip_rx", 0.4), ("r_knee_rx", 0.6),
+                        ("l_knee_rx", 0.15), ("l_shoulder_rz", -1.25), ("r_shoulder_rz", 1.25),
+                        ("r_shoulder_rx", -0.5), ("l_shoulder_rx", 0.45), ("pelvis_ry", turn)):
+        P[:, d.index(name)] = value
+    P = d.validate(P)
+    mirror = d.validate(exchange_limbs(P, limb_pairs(d)))
+    monkeypatch.setattr(dt, "canonical_poses", lambda dofs, skeleton=None: (["stride"], mirror))
+    cam = depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
+    z, _ = ref.render_candidates(body.mesh, body.skinning(P), cam.K, cam.R, cam.t, cam.width,
+                                 cam.height)
+    with DatasetWriter(tmp_path / "ds", "depth", 30.0, [cam], body=body_to_meta(sk)) as w:
+        w.write_depth(0, 0, z[0])
+    want = body.joints(P)[0]
+
+    def right_way(x):
+        got = body.joints(x[None])[0]
+        l, r = sk.index("l_ankle"), sk.index("r_ankle")
+        facing = np.cos(x[d.index("pelvis_ry")] - turn) > 0
+        return facing and (np.linalg.norm(got[l] - want[l]) + np.linalg.norm(got[r] - want[r])
+                           < np.linalg.norm(got[l] - want[r]) + np.linalg.norm(got[r] - want[l]))
+
+    def hypotheses(exchange):
+        tr = dt.HillClimbDepthTracker(Dataset.open(tmp_path / "ds"), body, ctx,
+                                      dt.DepthOptions(init_headings=1, init_exchange=exchange))
+        try:
+            return tr.start_hypotheses(0)
+        finally:
+            tr.close()
+
+    found = [x for x in hypotheses(True) if right_way(x)]
+    assert found
+    assert min(np.linalg.norm(body.joints(x[None])[0] - want, axis=1).mean() for x in found) < 0.12
+    assert not any(right_way(x) for x in hypotheses(False))

@@ -367,7 +367,8 @@ class _DepthFrames:
     def __init__(self, dataset, ctx, template_body, tile: int, rng):
         from .depth import DepthOptions
 
-        o = DepthOptions()
+        # the settle tries the legs both ways itself (DepthOptions.init_exchange says why)
+        o = DepthOptions(init_exchange=False)
         self.opt = o
         self.dataset, self.ctx, self.rng = dataset, ctx, rng
         self.obs = DepthObservation(dataset, bg_tolerance=o.bg_tolerance, bg_sigmas=o.bg_sigmas,

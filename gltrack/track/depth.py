@@ -56,7 +56,8 @@ from gltrack.observe.depth import foreground_points
 from gltrack.observe.depth_view import DepthLikelihood, DepthObservation
 from gltrack.render.engine import DepthCostParams
 from gltrack.sample.hillclimb import hill_climb, hill_climb_lanes, stage_climb
-from gltrack.sample.partitions import default_partitions, hill_climb_order
+from gltrack.sample.partitions import (default_partitions, exchange_limbs, hill_climb_order,
+                                      limb_pairs)
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
@@ -111,6 +112,15 @@ class DepthOptions(Options):
     init_headings, init_keep : ``--init auto``: headings at which each library pose is placed
         and scored, and how many of the best are hill-climbed, each also turned round (see
         :meth:`auto_init`)
+    init_exchange : ``--init auto`` also climbs each heading's best pose with its legs and arms
+        exchanged (mirrored): a stride with the other leg forward fits one depth surface about
+        as well, and a climb seldom crosses from one to the other (tests/test_track_depth.py:
+        a library holding only the mirror-image stride). On the three honest bench clips
+        (`bench depth --quick --protocol honest`) no start changed: the same figures to the
+        digit. The body estimate switches it off: its own settle already tries the legs both
+        ways (:meth:`gltrack.track.body_estimate._Search.settle`), and starting it from the
+        exchanged pose moved its stature by 20-60 mm on three of five rendered subjects
+        (1.55-1.92 m), each time further from the truth (the MakeHuman hop's came nearer)
     init_depth_offset : metres; ``--init auto`` places the body's volume centroid this far
         behind the centroid of the seen (front) surface, about half a torso's depth
     stages : how the per-frame climb batches its candidates. "parts" (default): one engine
@@ -163,6 +173,7 @@ class DepthOptions(Options):
     heading_margin: float = 0.0
     init_headings: int = 12
     init_keep: int = 2
+    init_exchange: bool = True
     init_depth_offset: float = 0.1
     stages: str = "parts"
     mesh_lod: int = 1
@@ -473,7 +484,8 @@ class HillClimbDepthTracker(Tracker):
         ``init_keep`` best, and each turned round by 180 degrees, is hill-climbed on its own
         without the motion prior (three
         coarse-to-fine passes with a grid of 6 sigmas, halved each pass, the root +-0.3 m, each
-        with two extra limb sweeps) and the lowest cost starts the tracker.
+        with two extra limb sweeps); each heading's best is climbed once more with its legs and
+        arms exchanged (mirrored), and the lowest cost starts the tracker.
 
         Why the extra limb sweeps: seen side-on, the body at the right heading got stuck with an
         arm behind the torso (cost 9.5 against 4.7 for the mirror-image heading, 290 mm off);
@@ -514,8 +526,7 @@ class HillClimbDepthTracker(Tracker):
         # body estimate that starts from it was measured worse with the centres skipped (four
         # simulated depth subjects, 1.62-1.92 m: 6-47 mm off in height, mean 23, against 5-27,
         # mean 13)
-        X, costs = [], []
-        for x in seeds:
+        def climb(x):
             wide = 6.0 * self.sigma
             wide[:3] = 0.3
             for _ in range(3):  # no prior: there is no motion to predict from yet
@@ -525,9 +536,19 @@ class HillClimbDepthTracker(Tracker):
                 res = self.refine(x, x, steps=wide, extra=2, prior_weight=0.0, stages="chain",
                                   rescore_centre=True)
                 x, wide = res.x, wide * 0.5
-            X.append(x)
-            costs.append(float(res.cost))
-        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(seeds),
+            return x, float(res.cost)
+
+        X, costs = map(list, zip(*[climb(x) for x in seeds]))
+        # each heading's best climbed pose also with the legs and arms exchanged (mirrored) and
+        # climbed again: a stride with the other leg forward fits a depth surface about as well
+        # and a climb seldom goes from one to the other (as the multi-view start)
+        pairs = limb_pairs(d) if self.opt.init_exchange else []
+        if pairs:
+            for m in two_modes(X, costs, d.index("pelvis_ry")):
+                x, c = climb(d.validate(exchange_limbs(m, pairs))[0])
+                X.append(x)
+                costs.append(c)
+        log.info("auto init: %d placed poses, %d refined, cost %.3g", len(P), len(X),
                  min(costs))
         return two_modes(X, costs, d.index("pelvis_ry"))
 
