@@ -539,3 +539,49 @@ def test_speculative_batches_give_the_one_by_one_result(body, ep_problem):
     assert spec.evaluations >= seq.evaluations
     # ... but the proposals of a batch share their calls
     assert 0 < calls["lanes"] < calls["seq"]
+
+
+@pytest.mark.parametrize("path", ["one by one", "batched", "speculative"])
+def test_screen_refines_only_proposals_near_the_best(body, ep_problem, path):
+    """``screen``: the proposals are scored as the IK left them and only those within
+    ``screen`` of the best pose's cost are refined. The true hand's proposal starts below the
+    best (the flipped arm's cost goes) and still wins; the right hand sent to either detection
+    starts far above it and is never refined.
+    A screen below every proposal refines none."""
+    sk, dofs, kin, pm, mesh = body
+    x_true, x0, cost, hc, sig = ep_problem
+    truth = pm.positions(x_true)[0]
+    x_hc, c_hc, _ = hc(x0)
+    det = Detections(np.array([[0.5, 1.0, 1.0], truth[1]]), ["hand", "hand"])
+    refined = []
+
+    def hc_rec(x, part=None):
+        refined.append(1)
+        return hc(x, part)
+
+    def many(X, parts=None):
+        refined.append(len(X))
+        r = hill_climb_lanes(cost, X, list(range(dofs.size)), 2 * sig, levels=3, grid=5,
+                             lower=dofs.lower, upper=dofs.upper)
+        return r.X, r.cost, r.evaluations, r.calls
+
+    kw = dict(sigma=5 * sig, chains=part_chains(sk, dofs), lower=dofs.lower, upper=dofs.upper,
+              cost_best=c_hc, max_passes=1)
+    if path != "one by one":
+        kw.update(refine_many=many, speculate=path == "speculative")
+
+    def run(screen):
+        refined.clear()
+        res = evidence_propagation(x_hc, det, pm.part_fns(), PART_CLASSES, cost, hc_rec,
+                                   screen=screen, **kw)
+        return res, sum(refined)
+
+    free, n_free = run(None)
+    screened, n_screened = run(0.0)
+    assert [a["part"] for a in screened.accepted] == [a["part"] for a in free.accepted]
+    assert "l_hand" in [a["part"] for a in screened.accepted]
+    np.testing.assert_array_equal(screened.x, free.x)
+    assert n_screened == 1 and n_free >= 3, (n_screened, n_free)
+    none, n_none = run(-10.0)
+    assert n_none == 0 and none.accepted == [] and none.evaluations > 0
+    np.testing.assert_array_equal(none.x, x_hc)

@@ -82,7 +82,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                          max_passes: int = 3, ik_kwargs: dict | None = None,
                          margin: float = 0.0, control: bool = False,
                          reach: dict | None = None, nearest: bool = False,
-                         refine_many=None, speculate: bool = False) -> EPResult:
+                         refine_many=None, speculate: bool = False,
+                         screen: float | None = None) -> EPResult:
     """Greedy evidence propagation from classified part detections.
 
     Parameters
@@ -137,6 +138,12 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         :func:`gltrack.sample.hillclimb.hill_climb_lanes`) the result is the one-by-one
         loop's, in one batch of engine calls per acceptance instead of one per proposal
         (acceptances are rare: most proposals are refused).
+    screen : float, optional, in ``cost_fn``'s units: a proposal whose IK pose costs more than
+        the best pose's cost plus this is not refined (the proposals of a pass are scored
+        together first, one batch). Refining takes most of evidence propagation's time and
+        most proposals are refused; a short climb lowers a proposal's cost by a fraction of
+        how far it starts above the best, so one that starts far above it cannot win. None:
+        every proposal is refined.
 
     Returns
     -------
@@ -169,6 +176,17 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
         return ut_ik(x_best, part_fns[name], det.points[j], R, sigma,
                      dofs=None if chains is None else chains[name], lower=lower, upper=upper,
                      **ik_kwargs)
+
+    def screened(pending, iks):
+        """The proposals (and their IK results) worth refining (see ``screen``)."""
+        nonlocal evals
+        if screen is None or not pending:
+            return pending, iks
+        c0 = np.asarray(cost_fn(np.stack([ik.x for ik in iks])), dtype=np.float64).ravel()
+        evals += len(iks)
+        keep = c0 <= cost_best + float(screen)
+        log.debug("EP screen: %d of %d proposals refined", int(keep.sum()), len(keep))
+        return ([c for c, k in zip(pending, keep) if k], [ik for ik, k in zip(iks, keep) if k])
 
     def accept(name, j, ik, x_new, c_new):
         """``x_new`` (cost ``c_new``) replaces the best pose: detection ``j`` is ``name``."""
@@ -212,7 +230,9 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                 pending = [(n, j) for n, j in pending if not used[j]]
                 if not pending:
                     break
-                iks = [propose(name, j) for name, j in pending]
+                pending, iks = screened(pending, [propose(name, j) for name, j in pending])
+                if not pending:
+                    break
                 X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]),
                                                  [name for name, _ in pending])
                 evals += int(e)
@@ -226,7 +246,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
                 pending = pending[won + 1:]
             cands = []
         if refine_many is not None and cands:
-            iks = [propose(name, j) for name, j in cands]
+            cands, iks = screened(cands, [propose(name, j) for name, j in cands])
+        if refine_many is not None and cands:
             X_new, c_new, e, _ = refine_many(np.stack([ik.x for ik in iks]),
                                              [name for name, _ in cands])
             evals += int(e)
@@ -241,6 +262,8 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
             if used[j]:
                 continue
             ik = propose(name, j)
+            if not screened([(name, j)], [ik])[0]:
+                continue
             x_new, c_new, e = hill_climb_fn(ik.x, name)
             evals += int(e)
             if float(c_new) < cost_best - margin:
