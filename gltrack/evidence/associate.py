@@ -141,9 +141,9 @@ def evidence_propagation(x_best, detections, part_fns: dict, classes: dict, cost
     screen : float, optional, in ``cost_fn``'s units: a proposal whose IK pose costs more than
         the best pose's cost plus this is not refined (the proposals of a pass are scored
         together first, one batch). Refining takes most of evidence propagation's time and
-        most proposals are refused; a short climb lowers a proposal's cost by a fraction of
-        how far it starts above the best, so one that starts far above it cannot win. None:
-        every proposal is refined.
+        most proposals are refused; a short climb takes off part of how far a proposal
+        starts above the best (typically three quarters), so one that starts far above it
+        seldom wins. None: every proposal is refined.
 
     Returns
     -------

@@ -90,14 +90,15 @@ class EvidenceOptions(DepthOptions):
         the whole body is what recovers the other limbs too
     proposal_screen : a proposal whose IK pose costs more than the best pose plus this (area
         units, like ``accept_margin``) is not refined; negative = every proposal is refined
-        (:func:`gltrack.evidence.associate.evidence_propagation`, ``screen``). Why 10: over
-        the 15 oracle datasets below (walk / hop / salsa, noise seeds 0-4, 60 frames), 52
-        proposals were accepted in 573 passes; they started 4.1 below to 12.5 above the best
-        pose before their climb (a climb takes a third to two thirds of the excess off), and
-        of 1127 proposals 37 % started more than 10 above. With 10, three of the 52 would have
-        been screened out, yet the tracks came out the same or better (mean marker error walk
-        52.9 -> 50.4 mm, -2.4 +- 4.2 paired; hop 73.3 -> 72.4, -0.9 +- 1.0; salsa 61.2, the
-        same to the digit), with 24 / 20 / 4 % fewer evaluations a frame and 1.18-1.36x /
+        (:func:`gltrack.evidence.associate.evidence_propagation`, ``screen``). Why 10: on 11
+        oracle datasets (hc+ep, true body and start, 60 frames; hop and salsa with noise seeds
+        0-4, walk seed 0), 52 proposals were accepted in 573 passes; they started 4.1 below to
+        12.5 above the best pose before their climb (a climb took off a median 76 % of a
+        proposal's excess, 5-95 %: 32-140 %), and of 1127 proposals 37 % started more than 10
+        above. With 10, three of the 52 would have been screened out. Over walk, hop and salsa
+        with seeds 0-4 (15 datasets) the tracks came out the same or better (mean marker error
+        walk 52.9 -> 50.4 mm, -2.4 +- 4.2 paired; hop 73.3 -> 72.4, -0.9 +- 1.0; salsa 61.2,
+        the same to the digit), with 24 / 20 / 4 % fewer evaluations a frame and 1.18-1.36x /
         1.09-1.40x / 0.98-1.13x the frames/s (llvmpipe, paired runs)
     """
 
