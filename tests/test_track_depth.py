@@ -342,15 +342,11 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch, turn)
     from gltrack.render import reference as ref
     from gltrack.sample.partitions import exchange_limbs, limb_pairs
 
+    from trackdata import legs_right_way, mid_stride
+
     body = BodyModel.build()
     d, sk = body.dofs, body.skeleton
-    P = d.zero(sk)[None].copy()
-    P[:, :3] = (0.0, 0.95, 0.0)
-    for name, value in (("l_hip_rx", -0.55), ("r_hip_rx", 0.4), ("r_knee_rx", 0.6),
-                        ("l_knee_rx", 0.15), ("l_shoulder_rz", -1.25), ("r_shoulder_rz", 1.25),
-                        ("r_shoulder_rx", -0.5), ("l_shoulder_rx", 0.45), ("pelvis_ry", turn)):
-        P[:, d.index(name)] = value
-    P = d.validate(P)
+    P = mid_stride(body, pelvis_tx=0.0, pelvis_ty=0.95, pelvis_tz=0.0, pelvis_ry=turn)
     mirror = d.validate(exchange_limbs(P, limb_pairs(d)))
     monkeypatch.setattr(dt, "canonical_poses", lambda dofs, skeleton=None: (["stride"], mirror))
     cam = depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
@@ -361,11 +357,7 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch, turn)
     want = body.joints(P)[0]
 
     def right_way(x):
-        got = body.joints(x[None])[0]
-        l, r = sk.index("l_ankle"), sk.index("r_ankle")
-        facing = np.cos(x[d.index("pelvis_ry")] - turn) > 0
-        return facing and (np.linalg.norm(got[l] - want[l]) + np.linalg.norm(got[r] - want[r])
-                           < np.linalg.norm(got[l] - want[r]) + np.linalg.norm(got[r] - want[l]))
+        return legs_right_way(body, x, P[0])
 
     def hypotheses(exchange):
         tr = dt.HillClimbDepthTracker(Dataset.open(tmp_path / "ds"), body, ctx,

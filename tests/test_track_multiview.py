@@ -451,14 +451,11 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch):
     from gltrack.data.dataset import Dataset
     from gltrack.sample.partitions import exchange_limbs, limb_pairs
 
+    from trackdata import legs_right_way, mid_stride
+
     body = BodyModel.build()
-    d, sk = body.dofs, body.skeleton
-    P = d.zero(sk)[None].copy()
-    for name, value in (("l_hip_rx", -0.55), ("r_hip_rx", 0.4), ("r_knee_rx", 0.6),
-                        ("l_knee_rx", 0.15), ("l_shoulder_rz", -1.25), ("r_shoulder_rz", 1.25),
-                        ("r_shoulder_rx", -0.5), ("l_shoulder_rx", 0.45)):
-        P[:, d.index(name)] = value
-    P = d.validate(P)
+    d = body.dofs
+    P = mid_stride(body)
     mirror = d.validate(exchange_limbs(P, limb_pairs(d)))
     monkeypatch.setattr(mv, "canonical_poses", lambda dofs, skeleton=None: (["stride"], mirror))
     cams = ring_cameras((0.1, 0.9, 0.2), **dict(RING, radius=3.0))
@@ -466,13 +463,7 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch):
     want = body.joints(P)[0]
 
     def right_way(x):
-        """Facing the right way (a body turned round with the mirror-image stride puts its
-        ankles where the truth's are) with each ankle nearer its own side's truth."""
-        got = body.joints(x[None])[0]
-        l, r = sk.index("l_ankle"), sk.index("r_ankle")
-        facing = np.cos(x[d.index("pelvis_ry")] - P[0, d.index("pelvis_ry")]) > 0
-        return facing and (np.linalg.norm(got[l] - want[l]) + np.linalg.norm(got[r] - want[r])
-                           < np.linalg.norm(got[l] - want[r]) + np.linalg.norm(got[r] - want[l]))
+        return legs_right_way(body, x, P[0])
 
     def hypotheses():
         # one heading, the true one (and its turned-round twin): only the legs are in question

@@ -34,6 +34,34 @@ def smooth_motion(body, n, rng, fps=30.0):
     return d.validate(P)
 
 
+#: a walker in mid-stride: left leg and right arm forward, right knee bent (radians)
+MID_STRIDE = {"l_hip_rx": -0.55, "r_hip_rx": 0.4, "r_knee_rx": 0.6, "l_knee_rx": 0.15,
+              "l_shoulder_rz": -1.25, "r_shoulder_rz": 1.25, "r_shoulder_rx": -0.5,
+              "l_shoulder_rx": 0.45}
+
+
+def mid_stride(body, **extra):
+    """(1, D) the :data:`MID_STRIDE` pose, with ``extra`` DOF values (name -> value) set too."""
+    d = body.dofs
+    P = d.zero(body.skeleton)[None].copy()
+    for name, value in {**MID_STRIDE, **extra}.items():
+        P[:, d.index(name)] = value
+    return d.validate(P)
+
+
+def legs_right_way(body, x, truth):
+    """Pose ``x`` (D,) faces the way of ``truth`` (D,) and has each ankle nearer its own side's
+    true ankle than the other's (a body turned round with the mirror-image stride puts its
+    ankles where the truth's are, hence the heading test)."""
+    d, sk = body.dofs, body.skeleton
+    got, want = body.joints(x[None])[0], body.joints(truth[None])[0]
+    l, r = sk.index("l_ankle"), sk.index("r_ankle")
+    yaw = d.index("pelvis_ry")
+    facing = np.cos(x[yaw] - truth[yaw]) > 0
+    return facing and (np.linalg.norm(got[l] - want[l]) + np.linalg.norm(got[r] - want[r])
+                       < np.linalg.norm(got[l] - want[r]) + np.linalg.norm(got[r] - want[l]))
+
+
 def make_depth_dataset(out, n=8, seed=0, noise=0.005):
     rng = np.random.default_rng(seed)
     body = BodyModel.build()
