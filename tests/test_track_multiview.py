@@ -110,7 +110,7 @@ def test_options_are_validated(dataset, tmp_path):
     cfg = tmp_path / "bad.toml"
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
                  "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n",
-                 "iou_tile = 48\n", "mesh_lod = 3\n"):
+                 "iou_tile = 48\n", "mesh_lod = 3\n", "arm_sweep = 1\n", "arm_sweep = -2\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
@@ -479,3 +479,46 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch):
     assert min(np.linalg.norm(body.joints(x[None])[0] - want, axis=1).mean() for x in found) < 0.12
     monkeypatch.setattr(mv, "limb_pairs", lambda dofs: [])  # the start without the exchange
     assert not any(right_way(x) for x in hypotheses())
+
+
+def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
+    """The subject holds its right arm up; the tracker starts with it hanging (2 rad away, far
+    beyond what one step's diffusion reaches). With the arm sweep the first step's estimate
+    raises it (wrist within 0.15 m) and the particles follow; without it the wrist stays off."""
+    import gltrack.track.multiview as mv
+    from gltrack.data.dataset import Dataset
+
+    body = BodyModel.build()
+    d, sk = body.dofs, body.skeleton
+    P = np.repeat(d.zero(sk)[None], 2, axis=0)
+    P[:, d.index("l_shoulder_rz")] = -1.2
+    P[:, d.index("r_shoulder_rz")] = -0.6
+    P = d.validate(P)
+    wrist, shoulder = sk.index("r_wrist"), sk.index("r_shoulder")
+    J = body.joints(P[:1])[0]
+    assert J[wrist, 1] > J[shoulder, 1] + 0.2  # the premise: the arm is raised
+    cams = ring_cameras((0.1, 0.9, 0.2), **dict(RING, radius=3.0))
+    render_dataset(tmp_path / "ds", body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
+    start = P[0].copy()
+    start[d.index("r_shoulder_rz")] = 1.2  # hanging
+
+    def step(sweep):
+        opt = mv.HpsOptions(particles=40, arm_sweep=sweep)
+        tr = mv.HPSTracker(Dataset.open(tmp_path / "ds"), body, ctx, opt,
+                           np.random.default_rng(0))
+        try:
+            tr.start(0, start)
+            est = tr.step(1)
+            spread = np.linalg.norm(body.joints(tr.particles)[:, wrist] - J[wrist], axis=1)
+        finally:
+            tr.close()
+        return np.linalg.norm(body.joints(est.params[None])[0, wrist] - J[wrist]), est, spread
+
+    off, est_off, _ = step(0)
+    on, est_on, spread = step(10)
+    assert off > 0.4, off
+    assert on < 0.15, on
+    assert "r_shoulder" in est_on.info["arm_sweep"] and "arm_sweep" not in est_off.info
+    assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
+    assert est_on.evaluations - est_off.evaluations == sum(len(g) + 1 for _, _, g in
+                                                             mv.arm_grid(d, 10))

@@ -1,0 +1,63 @@
+"""The arm sweep (gltrack.sample.sweep): its grids and its choice, on plain weight functions."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from gltrack.body.model import BodyModel
+from gltrack.sample.sweep import arm_grid, sweep_arms
+
+
+@pytest.mark.parametrize("preset", ["full", "38", "25", "upper"])
+def test_grids_span_each_arms_limits(preset):
+    body = BodyModel.build(None, preset)
+    d = body.dofs
+    grids = arm_grid(d, swing=5, flex=3)
+    assert [g[0] for g in grids] == ["l_shoulder", "r_shoulder"]
+    for joint, idx, grid in grids:
+        side = joint[0]
+        assert [d.names[i] for i in idx] == [f"{side}_shoulder_ry", f"{side}_shoulder_rz",
+                                             f"{side}_elbow_ry"]
+        assert grid.shape == (5 * 5 * 3, 3)
+        np.testing.assert_allclose(grid.min(axis=0), d.lower[idx])
+        np.testing.assert_allclose(grid.max(axis=0), d.upper[idx])
+        assert len(np.unique(grid, axis=0)) == len(grid)
+
+
+def test_an_arm_without_its_elbow_is_swept_by_its_swing_only():
+    names = ("pelvis_tx", "l_shoulder_ry", "l_shoulder_rz", "r_shoulder_rz")
+    d = SimpleNamespace(names=names, lower=np.array([-1.0, -2.0, -1.0, -1.0]),
+                        upper=np.array([1.0, 1.0, 2.0, 1.0]))
+    grids = arm_grid(d, swing=4, flex=3)
+    assert len(grids) == 1  # the right arm has one swing axis: nothing to sweep
+    joint, idx, grid = grids[0]
+    assert joint == "l_shoulder" and idx.tolist() == [1, 2] and grid.shape == (16, 2)
+    assert arm_grid(d, swing=4, flex=0)[0][2].shape == (16, 2)
+
+
+def test_sweep_moves_an_arm_to_the_best_grid_point_and_keeps_a_better_estimate():
+    body = BodyModel.build()
+    d = body.dofs
+    grids = arm_grid(d, swing=6, flex=3)
+    x = d.zero(body.skeleton).copy()
+    x[d.index("r_shoulder_rz")] = 1.2  # hanging
+    target = x.copy()
+    _, idx, grid = grids[1]
+    target[idx] = grid[40] + 0.05  # a raised arm near a grid point
+    calls = []
+
+    def weights(X):  # larger nearer the target's right arm
+        calls.append(len(X))
+        moved = set(np.flatnonzero(np.ptp(X, axis=0) > 0).tolist())
+        assert moved == set(grids[len(calls) - 1][1].tolist())  # one arm at a time, only it
+        return -np.linalg.norm(X[:, idx] - target[idx], axis=1)
+
+    res = sweep_arms(x, weights, grids)
+    np.testing.assert_allclose(res.estimate[idx], grid[40])
+    np.testing.assert_allclose(res.delta, res.estimate - x)
+    assert res.improved == ("r_shoulder",)
+    assert calls == [len(g[2]) + 1 for g in grids] and res.evaluations == sum(calls)
+    # an estimate that already weighs most stays as it is
+    res = sweep_arms(target, lambda X: -np.linalg.norm(X - target, axis=1), grids)
+    np.testing.assert_array_equal(res.estimate, target)
+    assert res.improved == () and not res.delta.any()
