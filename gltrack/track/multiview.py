@@ -606,8 +606,6 @@ class MultiviewTracker(Tracker):
         res = self.sampler.step(self.particles, self.weights, self.rng, predict_fn=predict,
                                 predict_scale=self.opt.prior_diffusion)
         self.particles = res.particles
-        if self.prior is not None:
-            self.prior.follow(self.particles)
         x = res.estimate if self.opt.estimate == "mean" else res.best
         x = self.body.dofs.validate(x)[0]
         evaluations = int(res.evaluations)
@@ -619,6 +617,8 @@ class MultiviewTracker(Tracker):
             if swept:  # the particles follow the estimate's arms
                 x = sw.estimate
                 self.particles = self.body.dofs.validate(self.particles + sw.delta)
+        if self.prior is not None:  # the particles as they go on to the next frame
+            self.prior.follow(self.particles)
         self.velocity, self.last = x - self.last, x
         e_s, c_a = self.scores(x[None])
         e_s, c_a = float(e_s[0]), None if c_a is None else float(c_a[0])
