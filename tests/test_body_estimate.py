@@ -5,6 +5,7 @@ The datasets are rendered with the CPU reference rasteriser (no simulator): 4 co
 with true-silhouette masks, or one SR4000-like depth camera, watching a person of 1.62 m (or
 1.92 m) with girth scale 1.1 walk slowly, raise an arm and bend the knees.
 """
+import cv2
 import numpy as np
 import pytest
 
@@ -16,7 +17,8 @@ from gltrack.body.skeleton import default_skeleton
 from gltrack.camera import depth_camera_sr4000
 from gltrack.data.dataset import Dataset, DatasetWriter
 from gltrack.render import reference as ref
-from gltrack.body.measure import CANONICAL_BONES, body_error, bone_lengths
+from gltrack.body.measure import CANONICAL_BONES, body_error, bone_lengths, lowest_sole
+from gltrack.track import body_estimate
 from gltrack.track.body_estimate import Proportions, StretchedTemplate, estimate_body
 
 from trackdata import smooth_motion
@@ -87,6 +89,26 @@ def test_body_error_measures_bone_lengths_and_height():
     assert e["height_mm"] == pytest.approx(175.0)
 
 
+def test_lowest_sole_is_the_meshs_lowest_point():
+    """The floor test's sole height against the skinned procedural mesh's lowest vertex: at
+    rest on the floor (y = 0), and within 2 cm on random poses of two bodies (the mesh's foot is
+    rounded and rolls on its edge; the sole points do not), following the pose."""
+    rng = np.random.default_rng(0)
+    for sk in (default_skeleton(), Proportions(height=1.6, ankle=0.05, foot=0.14).skeleton()):
+        body = BodyModel.build(sk)
+        d = body.dofs
+        X = d.zero(sk) + rng.normal(size=(40, d.size)) * 0.35
+        X[:, :3] = d.zero(sk)[:3] + rng.normal(size=(40, 3)) * 0.05
+        X[:, 3:6] *= 0.3
+        X = d.validate(X)
+        X[0] = d.zero(sk)
+        mesh_low = body.mesh.skin(body.skinning(X))[..., 1].min(axis=1)
+        sole = lowest_sole(body.kin, X)
+        assert abs(sole[0]) < 1e-9 and abs(mesh_low[0]) < 0.005, (sole[0], mesh_low[0])
+        assert np.abs(sole - mesh_low).max() < 0.02, np.abs(sole - mesh_low).max()
+        assert np.ptp(sole) > 0.1  # the poses do move the feet up and down
+
+
 def test_stretched_template_stands_in_for_another_bodys_mesh():
     """The per-bone affine maps carry the default mesh onto the mesh of quite other
     proportions within about a centimetre, at rest and posed."""
@@ -130,6 +152,40 @@ def test_multiview_estimate_finds_a_short_stout_subject(tmp_path, ctx):
     est = estimate_body(ds, ctx, frames=[0, 3], rounds=1, tile=128, rng=np.random.default_rng(0))
     _check(est, true, 30.0)
     assert est.girth_scale > 1.0
+    assert -0.1 < est.floor <= 0.0, est.floor  # the hulls' bottom: the subject stands on y = 0
+
+
+def test_masks_that_spill_sideways_do_not_sink_the_estimate_through_the_floor(tmp_path, ctx,
+                                                                             monkeypatch):
+    """Masks widened by 2 pixels on either side (128 x 96 images; as a segmentation that
+    spills into the background beside the person) are covered best by a body too tall for
+    them that sinks through the floor. With the floor (the visual hulls' bottom) no sole
+    goes more than FLOOR_TOLERANCE below it, and the height error is much smaller. The
+    ``upper`` preset, whose legs are hidden, has no floor."""
+
+    true = _body(1.62)
+    ds = _multiview(tmp_path / "mv", true)
+    for f in sorted((tmp_path / "mv").glob("cam*_mask/*.png")):
+        cv2.imwrite(str(f), cv2.dilate(cv2.imread(str(f), 0), np.ones((1, 5), np.uint8)))
+
+    def estimate():
+        return estimate_body(ds, ctx, frames=[0, 3], rounds=1, tile=128,
+                             rng=np.random.default_rng(0))
+
+    with_floor = estimate()
+    monkeypatch.setattr(body_estimate, "FLOOR_PENALTY", 0.0)
+    without = estimate()
+    floor = with_floor.floor
+    assert floor == without.floor and -0.1 < floor <= 0.0, floor  # the subject stands on y = 0
+    soles = [lowest_sole(e.body.kin, e.poses) for e in (with_floor, without)]
+    assert soles[0].min() > floor - body_estimate.FLOOR_TOLERANCE - 0.005, (floor, soles)
+    assert soles[1].min() < floor - 0.15, (floor, soles)
+    err = [body_error(e.skeleton, true.skeleton)["height_mm"] for e in (with_floor, without)]
+    assert 0.0 < err[0] < 0.7 * err[1], err
+    # hidden legs (a seated subject behind a desk) are not held above a floor
+    monkeypatch.undo()
+    upper = estimate_body(ds, ctx, preset="upper", frames=[0], rounds=0, tile=128)
+    assert upper.floor is None
 
 
 def test_depth_estimate_finds_a_short_stout_subject(tmp_path, ctx):
@@ -137,6 +193,7 @@ def test_depth_estimate_finds_a_short_stout_subject(tmp_path, ctx):
     ds = _depth(tmp_path / "d", true)
     est = estimate_body(ds, ctx, frames=[0, 3], rounds=1, rng=np.random.default_rng(0))
     _check(est, true, 30.0)
+    assert est.floor is None  # depth: background subtraction takes the soles with the floor
 
 
 def test_depth_estimate_follows_the_subject(tmp_path, ctx):

@@ -75,3 +75,34 @@ def body_error(estimated: Skeleton, true: Skeleton) -> dict:
     return {"mean_bone_mm": float(np.mean(np.abs(list(err.values())))),
             "max_bone_mm": float(abs(err[worst])), "worst_bone": worst,
             "height_mm": 1000.0 * (estimated.height() - true.height()), "bones_mm": err}
+
+
+#: How far the procedural foot's heel reaches behind the ankle, as a fraction of the ankle's
+#: horizontal reach to the toe tip (:func:`gltrack.body.mesh._foot_segment` builds it so).
+HEEL_BEHIND = 0.28
+
+
+def lowest_sole(kin, params) -> np.ndarray:
+    """Height (world y, metres) of the lowest sole point of each pose: the toe tips and the
+    heels of both feet, as the procedural foot places them (the toe tip at the ankle's end
+    site, the heel at the sole's height :data:`HEEL_BEHIND` of the foot behind the ankle).
+
+    Parameters
+    ----------
+    kin : gltrack.body.kinematics.Kinematics
+    params : (N, D) or (D,) float, poses
+
+    Returns
+    -------
+    (N,) float64, metres
+    """
+    sk = kin.skeleton
+    bones, local = [], []
+    for name in ("l_ankle", "r_ankle"):
+        j = sk.index(name)
+        toe = np.asarray(sk.ends[j], dtype=np.float64)
+        heel = toe * np.array([-HEEL_BEHIND, 1.0, -HEEL_BEHIND])
+        bones += [j, j]
+        local += [toe, heel]
+    pts = kin.transform_points(kin.forward(params), np.array(bones), np.array(local))
+    return pts[..., 1].min(axis=1)

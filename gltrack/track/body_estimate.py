@@ -26,7 +26,8 @@ How (both rigs, the same search; only the per-frame cost differs):
    a step up or down is kept when its *profile* cost beats the current cost: the frames'
    poses carried over to the candidate body (same angles, feet kept on their spot) and
    hill-climbed once, the cost summed over the frames (multi-view: silhouette XOR pixels over
-   all cameras; depth: the smoothstep depth cost). Judging a candidate at the current poses
+   all cameras, plus :data:`FLOOR_PENALTY` for a sole below the visual hulls' bottom; depth:
+   the smoothstep depth cost). Judging a candidate at the current poses
    instead never moves: those poses make up for the current body's errors. After every sweep
    the poses are hill-climbed again (:func:`gltrack.sample.hillclimb.hill_climb`).
 5. The result: the skeleton of the best proportions, the procedural mesh of it
@@ -80,7 +81,7 @@ import numpy as np
 
 from gltrack.body.dofs import HIDDEN_PARTS
 from gltrack.body.kinematics import Kinematics
-from gltrack.body.measure import bone_lengths
+from gltrack.body.measure import bone_lengths, lowest_sole
 from gltrack.body.mesh import make_body_mesh
 from gltrack.body.model import BodyModel
 from gltrack.body.poses import canonical_poses
@@ -304,10 +305,12 @@ class _SilhouetteFrames:
         self.template_body, self.tile = template_body, tile
         self.programs = ProgramCache(ctx)
         self.frames, self.engines = [], []
+        #: metres (world y): the lowest bottom of the visual hulls measured so far
+        self.floor = np.inf
 
     def measure(self, frame: int) -> tuple[float, np.ndarray]:
         """Height (metres, top to bottom plus one voxel) and centroid (3,) of the frame's
-        visual hull; NoPersonError without one."""
+        visual hull; NoPersonError without one. Lowers :attr:`floor` to the hull's bottom."""
         _, masks = self.obs(frame)
         volume = default_volume(self.obs.pinholes)
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=3, distort=False)
@@ -316,6 +319,7 @@ class _SilhouetteFrames:
                                 "the tracking volume: no person to estimate the body from")
         pts, vol = hull.points(max_size=0.05)
         size = float(np.cbrt(vol.min()))
+        self.floor = min(self.floor, float(pts[:, 1].min() - 0.5 * size))
         centroid = (pts * vol[:, None]).sum(axis=0) / vol.sum()
         return float(pts[:, 1].max() - pts[:, 1].min() + size), centroid
 
@@ -363,6 +367,10 @@ class _DepthFrames:
 
     unit = "area units"
     margin = 0.4
+    #: no floor: background subtraction removes the floor and with it the soles that touch
+    #: it, so the lowest foreground point lies above the floor, and a floor there would lift
+    #: the body off the ground
+    floor = np.inf
 
     def __init__(self, dataset, ctx, template_body, tile: int, rng):
         from .depth import DepthOptions
@@ -442,6 +450,8 @@ class BodyEstimate:
         cameras; "area units": depth cost, see :class:`DepthLikelihood`)
     seconds : float, wall time of the whole estimate
     evaluations : int, candidate (body, pose) pairs scored
+    floor : float or None, metres (world y): the floor no sole was let below (multi-view: the
+        lowest bottom of the frames' visual hulls; None for depth)
     """
 
     skeleton: Skeleton
@@ -454,13 +464,15 @@ class BodyEstimate:
     unit: str = ""
     seconds: float = 0.0
     evaluations: int = 0
+    floor: float | None = None
 
     def summary(self) -> dict:
-        """JSON-able record: proportions, height (m), girth scale, frames, costs, seconds."""
+        """JSON-able record: proportions, height (m), girth scale, frames, costs, seconds,
+        floor (m or None)."""
         return {"height": self.skeleton.height(), "girth_scale": self.girth_scale,
                 "proportions": self.proportions.as_dict(), "frames": list(self.frames),
                 "costs": self.costs, "unit": self.unit, "seconds": self.seconds,
-                "evaluations": self.evaluations}
+                "evaluations": self.evaluations, "floor": self.floor}
 
 
 #: Search schedule: (proportion, its first step). Order: the girth and the stature first (a
@@ -485,6 +497,21 @@ TEMPLATE_LOD = 0
 #: Steps of the stature search on the first frame alone (metres, each tried up to 3 times).
 FIRST_STEPS = (0.08, 0.04, 0.02)
 
+#: Silhouette XOR pixels per metre that a sole reaches more than :data:`FLOOR_TOLERANCE` below
+#: the floor (the lowest bottom of the frames' visual hulls; multi-view only). Why: the
+#: subject stands on something, and a hull holds the whole subject, so no sole lies below its
+#: bottom. Without this, masks that spill into the background beside the person (GrabCut on
+#: real footage) are covered best by a body too large for them that sinks through the floor:
+#: the Pose2Sim take gave 2.07-2.20 m with the soles 0.2-0.4 m under the hulls' bottom, and
+#: 1.89 m with this. 1000 pixels a centimetre outweighs any spill: in effect a limit, but one
+#: with a slope that a start below the floor can climb back along.
+FLOOR_PENALTY = 1.0e5
+#: metres a sole may reach below the floor before :data:`FLOOR_PENALTY` applies: what the
+#: procedural foot may differ from a real one (a mocap skeleton's ankle sits 1.5-2.4 % of the
+#: stature above its sole, the procedural one's 3.9 %: up to 4 cm at 1.75 m), plus the
+#: estimate of the lowest sole (within 1.6 cm of the mesh's lowest vertex)
+FLOOR_TOLERANCE = 0.05
+
 #: DOFs a candidate body's pose re-fit leaves alone: twists about a limb's own axis and the
 #: hands' and feet's small rotations barely change a silhouette or a depth surface.
 FROZEN = ("l_shoulder_rx", "r_shoulder_rx", "l_elbow_rx", "r_elbow_rx", "l_hip_ry", "r_hip_ry",
@@ -503,8 +530,11 @@ class _Search:
     legged bodies won where they should (walk subject: 1.44 -> 1.478 m, true 1.476 m).
     """
 
-    def __init__(self, views, template: StretchedTemplate, dofs, fps: float):
+    def __init__(self, views, template: StretchedTemplate, dofs, fps: float,
+                 stands: bool = True):
         self.views, self.template, self.dofs = views, template, dofs
+        #: whether the feet are scored, and so held above the views' floor
+        self.stands = bool(stands)
         self.sigma = dofs.sigma_at(fps)
         self.order = hill_climb_order(dofs, group_limbs=True)
         frozen = {dofs.index(n) for n in FROZEN if n in dofs.names}
@@ -531,13 +561,20 @@ class _Search:
         return self._cache[key]
 
     def frame_cost(self, k, shape=None):
-        """Cost function ``X (N, D) -> (N,)`` of frame ``k`` for ``shape`` (default current)."""
+        """Cost function ``X (N, D) -> (N,)`` of frame ``k`` for ``shape`` (default current):
+        the rig's cost plus :data:`FLOOR_PENALTY` per metre a sole reaches below the views'
+        floor."""
         kin, maps = self.candidate(shape or self.shape)
+        floor = self.views.floor if self.stands else np.inf
 
         def cost(X):
             X = np.atleast_2d(X)
             self.evaluations += len(X)
-            return self.views.cost(k, self.template.skinning(kin, maps, X))
+            c = self.views.cost(k, self.template.skinning(kin, maps, X))
+            if np.isfinite(floor):
+                below = floor - FLOOR_TOLERANCE - lowest_sole(kin, X)
+                c = c + FLOOR_PENALTY * np.maximum(0.0, below)
+            return c
 
         return cost
 
@@ -751,7 +788,9 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                                 "body from")
         chosen = sorted({first, *[f + first - chosen[0] for f in chosen
                                   if f + first - chosen[0] < dataset.frames]})
-        search = _Search(views, template, tbody.dofs, dataset.fps)
+        # hidden feet are not held above the floor: the hull's bottom is then the desk's edge
+        feet_hidden = any("foot" in p for p in HIDDEN_PARTS.get(search_preset, ()))
+        search = _Search(views, template, tbody.dofs, dataset.fps, stands=not feet_hidden)
         search.shape = Proportions(height=float(np.clip(h_guess, 1.0, 2.2)))
         x = views.initial_pose(chosen[0], BodyModel.build(search.shape.skeleton(), search_preset))
         views.add(chosen[0], x)
@@ -807,7 +846,8 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
         log.info("body estimate: height %.3f m, girth %.2f from frames %s in %.1f s (%d "
                  "evaluations)", skeleton.height(), shape.girth, chosen, seconds,
                  search.evaluations)
+        floor = float(views.floor) if search.stands and np.isfinite(views.floor) else None
         return BodyEstimate(skeleton, float(shape.girth), body, shape, chosen, poses, costs,
-                            views.unit, seconds, search.evaluations)
+                            views.unit, seconds, search.evaluations, floor)
     finally:
         views.release()
