@@ -26,8 +26,8 @@ How (both rigs, the same search; only the per-frame cost differs):
    a step up or down is kept when its *profile* cost beats the current cost: the frames'
    poses carried over to the candidate body (same angles, feet kept on their spot) and
    hill-climbed once, the cost summed over the frames (multi-view: silhouette XOR pixels over
-   all cameras, plus :data:`FLOOR_PENALTY` for a sole below the visual hulls' bottom; depth:
-   the smoothstep depth cost). Judging a candidate at the current poses
+   all cameras, plus :data:`FLOOR_PENALTY` for a sole more than :data:`FLOOR_TOLERANCE`
+   below the visual hulls' bottom; depth: the smoothstep depth cost). Judging a candidate at the current poses
    instead never moves: those poses make up for the current body's errors. After every sweep
    the poses are hill-climbed again (:func:`gltrack.sample.hillclimb.hill_climb`).
 5. The result: the skeleton of the best proportions, the procedural mesh of it
@@ -450,8 +450,9 @@ class BodyEstimate:
         cameras; "area units": depth cost, see :class:`DepthLikelihood`)
     seconds : float, wall time of the whole estimate
     evaluations : int, candidate (body, pose) pairs scored
-    floor : float or None, metres (world y): the floor no sole was let below (multi-view: the
-        lowest bottom of the frames' visual hulls; None for depth)
+    floor : float or None, metres (world y): the floor no sole was let more than
+        :data:`FLOOR_TOLERANCE` below (multi-view: the lowest bottom of the frames' visual
+        hulls; None for depth and where the feet are hidden)
     """
 
     skeleton: Skeleton
@@ -503,7 +504,7 @@ FIRST_STEPS = (0.08, 0.04, 0.02)
 #: bottom. Without this, masks that spill into the background beside the person (GrabCut on
 #: real footage) are covered best by a body too large for them that sinks through the floor:
 #: the Pose2Sim take gave 2.07-2.20 m with the soles 0.2-0.4 m under the hulls' bottom, and
-#: 1.89 m with this. 1000 pixels a centimetre outweighs any spill: in effect a limit, but one
+#: 1.89-1.90 m with this. 1000 pixels a centimetre outweighs any spill: in effect a limit, but one
 #: with a slope that a start below the floor can climb back along.
 FLOOR_PENALTY = 1.0e5
 #: metres a sole may reach below the floor before :data:`FLOOR_PENALTY` applies: what the
@@ -562,8 +563,8 @@ class _Search:
 
     def frame_cost(self, k, shape=None):
         """Cost function ``X (N, D) -> (N,)`` of frame ``k`` for ``shape`` (default current):
-        the rig's cost plus :data:`FLOOR_PENALTY` per metre a sole reaches below the views'
-        floor."""
+        the rig's cost plus :data:`FLOOR_PENALTY` per metre a sole reaches more than
+        :data:`FLOOR_TOLERANCE` below the views' floor (none where the feet are hidden)."""
         kin, maps = self.candidate(shape or self.shape)
         floor = self.views.floor if self.stands else np.inf
 
@@ -843,10 +844,10 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
             poses = np.stack([[p[list(full).index(n)] if n in full else 0.0
                                for n in body.dofs.names] for p in poses])
         seconds = time.perf_counter() - t0
-        log.info("body estimate: height %.3f m, girth %.2f from frames %s in %.1f s (%d "
-                 "evaluations)", skeleton.height(), shape.girth, chosen, seconds,
-                 search.evaluations)
         floor = float(views.floor) if search.stands and np.isfinite(views.floor) else None
+        log.info("body estimate: height %.3f m, girth %.2f from frames %s in %.1f s (%d "
+                 "evaluations; floor %s)", skeleton.height(), shape.girth, chosen, seconds,
+                 search.evaluations, "none" if floor is None else f"y = {floor:.3f} m")
         return BodyEstimate(skeleton, float(shape.girth), body, shape, chosen, poses, costs,
                             views.unit, seconds, search.evaluations, floor)
     finally:
