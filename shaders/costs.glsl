@@ -63,8 +63,16 @@ vec4 pixel_costs(ivec2 p) {
     vec2 fb = texelFetch(obs_mask, local, 0).rg;
     bool blocked = fb.g > 0.5;
 #endif
+#ifdef CH_APPEARANCE
+    // model_z and model_tri are one RG32F texture when triangle ids are drawn: one fetch for both
+    vec2 model = texelFetch(model_tri, p, 0).rg;
+#endif
 #ifdef CH_SILHOUETTE
+#ifdef CH_APPEARANCE
+    bool model_on = model.r > 0.0;
+#else
     bool model_on = texelFetch(model_z, p, 0).r > 0.0;
+#endif
     bool fg = fb.r > 0.5;
     c.y = (model_on != fg && !blocked) ? 1.0 : 0.0;
 #endif
@@ -72,7 +80,7 @@ vec4 pixel_costs(ivec2 p) {
     c.x = (texelFetch(model_z, p, 0).r > 0.0 && !blocked) ? 1.0 : 0.0;
 #endif
 #ifdef CH_APPEARANCE
-    int tri = int(texelFetch(model_tri, p, 0).g) - 1;
+    int tri = int(model.g) - 1;
     if (tri >= 0 && !blocked) {
         uvec3 ob = texelFetch(obs_bits, local, 0).rgb;
         uvec3 tb = texelFetch(tri_bits, ivec2(tri % 1024, tri / 1024), 0).rgb;

@@ -10,10 +10,20 @@ out float v_z;            // camera-frame depth, metres (perspective-correct int
 #ifdef TILE_CLIP_FRAGMENT
 flat out ivec2 v_tile;    // the candidate's tile (col, row): model.frag drops what falls outside
 #endif
+#ifdef TRI_FROM_VERTEX
+// The triangle this vertex provokes (-1: none; gltrack.render.provoking). A flat output takes the
+// provoking vertex's value, so the fragment shader gets the triangle's id without reading
+// gl_PrimitiveID, which sends llvmpipe down a slow primitive-assembly path.
+in int in_tri;
+flat out int v_tri;
+#endif
 
 void place_in_tile(vec3 world, int cand) {
     vec4 cam = view * vec4(world, 1.0);
     v_z = cam.z;
+#ifdef TRI_FROM_VERTEX
+    v_tri = in_tri;
+#endif
     vec4 c = proj * cam;
     int col = cand % grid.x;
     int row = cand / grid.x;

@@ -24,15 +24,17 @@ from gltrack.render.engine import (CustomCost, DepthCostParams, ScoringEngine, g
 TILE = 64
 #: The engine's two ways to skin and two ways to keep a candidate in its tile (ScoringEngine's
 #: ``skinning`` and ``tile_clip``): every pair must give the reference's images and scores.
-PATHS = [("vertex", "distance"), ("vertex", "fragment"), ("compute", "distance"),
-         ("compute", "fragment")]
+# (skinning, tile clip, triangle ids): software GL's paths first, then a GPU's
+PATHS = [("vertex", "distance", "provoking"), ("vertex", "fragment", "provoking"),
+         ("compute", "distance", "provoking"), ("compute", "fragment", "primitive"),
+         ("vertex", "distance", "primitive"), ("compute", "fragment", "provoking")]
 
 
 def path_kwargs(ctx, path):
-    skinning, tile_clip = path
+    skinning, tile_clip, triangle_ids = path
     if skinning == "compute" and ctx.version_code < 430:
         pytest.skip("compute skinning needs OpenGL 4.3")
-    return {"skinning": skinning, "tile_clip": tile_clip}
+    return {"skinning": skinning, "tile_clip": tile_clip, "triangle_ids": triangle_ids}
 
 
 @pytest.fixture(scope="module")
@@ -122,7 +124,7 @@ def test_depth_scores_match_reference(ctx, body, rng, smooth, path):
     assert np.ptp(want) > 10, "different poses must score differently"
 
 
-@pytest.mark.parametrize("path", [PATHS[0], PATHS[3]], ids="-".join)
+@pytest.mark.parametrize("path", [PATHS[0], PATHS[2], PATHS[3], PATHS[4]], ids="-".join)
 def test_silhouette_and_appearance_multi_camera(ctx, body, rng, path):
     skel, dofs, kin, mesh = body
     cs = cams(4, size=TILE, kind="colour")
@@ -408,6 +410,8 @@ def test_info_reports_backend_and_reduction():
     assert info["backend"] in ("egl", "osmesa") and info["version_code"] >= 330
     assert info["reduction"] in ("mipmap", "compute")
     assert info["skinning"] in ("vertex", "compute") and info["tile_clip"] in ("distance", "fragment")
+    assert info["skinning_4_cameras"] in ("vertex", "compute")
+    assert info["triangle_ids"] in ("primitive", "provoking")
     assert info["fk"] in ("cpu", "gpu")
     assert info["max_texture_size"] >= 2048
 
@@ -443,13 +447,41 @@ def test_skinning_paths_give_the_same_images(ctx, body, rng):
     assert not np.allclose(other[0], tiles["compute"][0])
 
 
+def test_triangle_id_paths_give_the_same_ids(ctx, body, rng):
+    """gl_PrimitiveID and the provoking-vertex layout: the same depths and triangle ids, up to
+    the z-order of a few pixels where two triangles meet (the layout rotates a triangle's
+    corners, which changes the last bits of its interpolated depth), on both skinning paths."""
+    skel, dofs, kin, mesh = body
+    cam = cams()[0]
+    S = kin.skinning_matrices(random_poses(body, rng, 6))
+    tiles = {}
+    for path in PATHS:
+        with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, **path_kwargs(ctx, path)) as eng:
+            tiles[path] = eng.render_tiles(S)
+    z0, tri0 = tiles[PATHS[4]]  # vertex skinning, clip distances, gl_PrimitiveID: the old path
+    assert (z0 > 0).sum() > 1000
+    for path, (z, tri) in tiles.items():
+        assert np.array_equal(z > 0, z0 > 0), path
+        assert np.abs(z - z0).max() < 1e-3, path
+        assert np.mean(tri[z0 > 0] == tri0[z0 > 0]) > 0.999, path
+    # and the ids follow the pose
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, triangle_ids="provoking") as eng:
+        _, other = eng.render_tiles(kin.skinning_matrices(random_poses(body, rng, 6)))
+    assert np.mean(other == tiles[PATHS[0]][1]) < 0.95
+
+
 def test_engine_path_choice():
-    from gltrack.render.engine import choose_skinning, choose_tile_clip
+    from gltrack.render.engine import choose_skinning, choose_tile_clip, choose_triangle_ids
 
     llvmpipe, h100 = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
     assert choose_skinning(llvmpipe, 450) == "vertex"
+    assert choose_skinning(llvmpipe, 450, 2) == "vertex"
+    assert choose_skinning(llvmpipe, 450, 4) == "compute"  # one skinning pass for all cameras
+    assert choose_skinning(llvmpipe, 330, 4) == "vertex"
     assert choose_skinning(h100, 460) == "compute"
     assert choose_skinning(h100, 330) == "vertex"  # no compute shaders before GL 4.3
+    assert choose_triangle_ids(llvmpipe) == "provoking"
+    assert choose_triangle_ids(h100) == "primitive"
     assert choose_tile_clip(llvmpipe) == "distance"
     assert choose_tile_clip(h100) == "fragment"
 
@@ -466,6 +498,12 @@ def test_engine_path_env_is_validated(ctx, body, monkeypatch):
     monkeypatch.setenv("GLTRACK_TILE_CLIP", "fragment")
     with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
         assert eng.tile_clip == "fragment"
+    monkeypatch.setenv("GLTRACK_TRIANGLE_IDS", "geometry")
+    with pytest.raises(ValueError, match="GLTRACK_TRIANGLE_IDS"):
+        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
+    monkeypatch.setenv("GLTRACK_TRIANGLE_IDS", "primitive")
+    with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
+        assert eng.triangle_ids == "primitive"
 
 
 @pytest.mark.parametrize("preset", ["full", "25", "upper"])

@@ -46,14 +46,15 @@ def dataset(tmp_path_factory):
     return out, body, P
 
 
-def _track(dataset_path, tmp_path, method, config, extra=("--init", "groundtruth")):
+def _track(dataset_path, tmp_path, method, config, extra=("--init", "groundtruth"), seed=1):
     """Track through the CLI; by default from the true first pose (the tracking tests measure
     the filters, the automatic start has tests of its own)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
     cfg = tmp_path / f"{method}.toml"
     cfg.write_text("\n".join(f"{k} = {json.dumps(v)}" for k, v in config.items()) + "\n")
     out = tmp_path / f"res_{method}"
     rc = main(["-q", "track", "--body", "dataset", str(dataset_path), "--method", method, "--out", str(out),
-               "--config", str(cfg), "--seed", "1", *extra])
+               "--config", str(cfg), "--seed", str(seed), *extra])
     assert rc == 0
     js = tmp_path / f"{method}.json"
     assert main(["-q", "eval", str(out), str(dataset_path), "--json", str(js)]) == 0
@@ -278,15 +279,20 @@ def periodic(tmp_path_factory):
 
 
 def test_hps_with_the_vlmm_prior_tracks(periodic, tmp_path):
+    """The median of three tracking seeds: with 40 particles one seed's error swings between
+    0.4 and 1.1 times the static error (18 seeds, 2026-11-27), and a one-pixel change in the
+    engine's triangle ids sends a seed elsewhere."""
     root, body, P = periodic
     static = static_error_mm(body, P)
     assert static > 60.0
     cfg = {"particles": 40, "prior": "vlmm", "prior_model": str(root / "model.npz")}
-    metrics, frames = _track(root / "ds", tmp_path, "hps", cfg)
-    err = _summary(metrics)
-    assert err < 0.8 * static, (err, static)
-    assert len(frames) == len(P)
-    assert all(f["evaluations"] == 40 * 15 + 1 for f in frames)
+    errs = []
+    for seed in (0, 1, 2):
+        metrics, frames = _track(root / "ds", tmp_path / str(seed), "hps", cfg, seed=seed)
+        errs.append(_summary(metrics))
+        assert len(frames) == len(P)
+        assert all(f["evaluations"] == 40 * 15 + 1 for f in frames)
+    assert np.median(errs) < 0.8 * static, (errs, static)
 
 
 def test_prior_option_is_validated(periodic, tmp_path, capsys):

@@ -28,12 +28,17 @@ def run(args):
             os.environ.get("GLTRACK_EGL_DEVICE") or args.device)
     try:
         from gltrack.render.engine import (batch_side, choose_reduction, choose_skinning,
-                                           choose_tile_clip, target_memory)
+                                           choose_tile_clip, choose_triangle_ids, target_memory)
 
         info["reduction"] = choose_reduction(ctx)
-        info["skinning"] = os.environ.get("GLTRACK_SKINNING") or choose_skinning(
-            info["renderer"], info["version_code"])
+        # one camera (the depth rig), and four (a multi-view rig): software GL skins once for
+        # all cameras only from three cameras on
+        for key, n_cams in (("skinning", 1), ("skinning_4_cameras", 4)):
+            info[key] = os.environ.get("GLTRACK_SKINNING") or choose_skinning(
+                info["renderer"], info["version_code"], n_cams)
         info["tile_clip"] = os.environ.get("GLTRACK_TILE_CLIP") or choose_tile_clip(info["renderer"])
+        info["triangle_ids"] = (os.environ.get("GLTRACK_TRIANGLE_IDS")
+                                or choose_triangle_ids(info["renderer"]))
         info["fk"] = os.environ.get("GLTRACK_FK") or "cpu"  # where score_poses runs FK
         # the largest batch the engine scores in one pass at the depth trackers' 64-pixel tile
         side = batch_side(info["max_texture_size"], 64,

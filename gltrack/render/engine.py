@@ -9,9 +9,10 @@ Per frame the observations are uploaded once (:meth:`ScoringEngine.set_depth`, `
    writing metric depth and triangle id (``shaders/model.frag``). The vertices are skinned in
    the draw's vertex shader (``shaders/skin.vert``) or, once for all cameras, by a compute pass
    (``shaders/skin.comp``, read by ``shaders/skinned.vert``); a candidate is kept inside its tile
-   by ``gl_ClipDistance`` or by a fragment test. Which is faster depends on the device
-   (:func:`choose_skinning`, :func:`choose_tile_clip`; ``gltrack info`` shows the choice);
-   the images are the same;
+   by ``gl_ClipDistance`` or by a fragment test. The triangle id comes from ``gl_PrimitiveID``
+   or from each triangle's provoking vertex (:mod:`gltrack.render.provoking`). Which is faster
+   depends on the device (:func:`choose_skinning`, :func:`choose_tile_clip`,
+   :func:`choose_triangle_ids`; ``gltrack info`` shows the choice); the images are the same;
 3. the per-pixel costs of ``shaders/costs.glsl`` are reduced to one sum per tile and channel,
    either by a full-screen cost pass plus the mipmap chain (the paper's method,
    ``shaders/cost.frag``) or by one compute work group per tile (``shaders/reduce.comp``, GL 4.3+).
@@ -48,6 +49,7 @@ import numpy as np
 from gltrack.body.mesh import BodyMesh
 from gltrack.gl.context import park_framebuffer
 from gltrack.gl.programs import ProgramCache
+from gltrack.render.provoking import provoking_layout
 
 log = logging.getLogger(__name__)
 
@@ -276,6 +278,12 @@ class ScoringEngine:
         frustum (``gl_ClipDistance``), "fragment" drops the fragments that fall outside the tile
         (``shaders/model.frag``). The same pixels are covered either way. "auto":
         ``GLTRACK_TILE_CLIP`` when it is set, else :func:`choose_tile_clip`.
+    triangle_ids : {"auto", "primitive", "provoking"}
+        How the draws for the appearance and custom costs get each pixel's triangle id:
+        "primitive" reads ``gl_PrimitiveID`` in the fragment shader, "provoking" draws a vertex
+        layout in which every triangle has a provoking vertex of its own that carries its id
+        (:mod:`gltrack.render.provoking`; up to twice the vertices). The ids are the same.
+        "auto": ``GLTRACK_TRIANGLE_IDS`` when it is set, else :func:`choose_triangle_ids`.
     fk : {"auto", "cpu", "gpu"}
         Where :meth:`score_poses` computes the skinning matrices from pose parameters: "cpu"
         with :class:`gltrack.body.kinematics.Kinematics` (float64), "gpu" in a compute pass
@@ -288,7 +296,7 @@ class ScoringEngine:
                  depth_params: DepthCostParams = DepthCostParams(), custom: CustomCost | None = None,
                  near: float = 0.05, far: float = 50.0, cull_back_faces: bool = True,
                  programs: ProgramCache | None = None, skinning: str = "auto",
-                 tile_clip: str = "auto", fk: str = "auto"):
+                 tile_clip: str = "auto", fk: str = "auto", triangle_ids: str = "auto"):
         if tile < 16 or tile > 512 or tile & (tile - 1):
             raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
         if reduction not in ("auto", "mipmap", "compute", "fastest"):
@@ -299,11 +307,14 @@ class ScoringEngine:
                              f"{ctx.version_code}")
         renderer = ctx.info.get("GL_RENDERER", "")
         skinning = _engine_option(ctx, "skinning", skinning, "GLTRACK_SKINNING",
-                                  choose_skinning(renderer, ctx.version_code), ("vertex", "compute"),
+                                  choose_skinning(renderer, ctx.version_code, len(cameras or ())),
+                                  ("vertex", "compute"),
                                   needs_430="compute")
         tile_clip = _engine_option(ctx, "tile_clip", tile_clip, "GLTRACK_TILE_CLIP",
                                    choose_tile_clip(renderer), ("distance", "fragment"))
         fk = _engine_option(ctx, "fk", fk, "GLTRACK_FK", "cpu", ("cpu", "gpu"), needs_430="gpu")
+        triangle_ids = _engine_option(ctx, "triangle_ids", triangle_ids, "GLTRACK_TRIANGLE_IDS",
+                                      choose_triangle_ids(renderer), ("primitive", "provoking"))
         if not cameras:
             raise ValueError("at least one camera is needed")
         if mesh.joints.max() >= n_bones:
@@ -319,8 +330,11 @@ class ScoringEngine:
         self.skinning = skinning
         self.tile_clip = tile_clip
         self.fk = fk
+        self.triangle_ids = triangle_ids
         self.kin = None  # set_kinematics
         self._joints_buf = None
+        self._layout = (provoking_layout(mesh.faces, mesh.n_vertices) if triangle_ids == "provoking"
+                        else None)
         limit = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 4096))
         memory = target_memory(ctx.info.get("GL_RENDERER", ""), os.environ.get("GLTRACK_GPU_MEMORY_MB"))
         self._memory = memory
@@ -352,32 +366,59 @@ class ScoringEngine:
         self._vbo_j = ctx.buffer(m.joints.astype("i4").tobytes())
         self._vbo_w = ctx.buffer(m.weights.astype("f4").tobytes())
         self._ibo = ctx.buffer(m.faces.astype("i4").tobytes())
+        # With triangle_ids="provoking" the draws with triangle ids use a layout in which every
+        # triangle has a provoking vertex of its own (gltrack.render.provoking); its first V
+        # vertices are the mesh's, so the depth-only draw indexes the same skinned buffer.
+        lay = self._layout
+        src = np.arange(m.n_vertices) if lay is None else lay.source
+        self._vbo_layout = []
+        if lay is not None:
+            self._ibo_tri = ctx.buffer(lay.faces.astype("i4").tobytes())
+            self._vbo_tri = ctx.buffer(lay.triangle.astype("i4").tobytes())
+            self._vbo_layout += [self._ibo_tri, self._vbo_tri]
         # Two model programs: depth only, and depth + triangle id (for the appearance cost).
         self._prog_model, self._vao = {}, {}
         self._skin_in = []
         if self.skinning == "compute":
             # std430 arrays of vec4 / ivec4: the rest positions padded to four floats
-            rest = np.zeros((m.vertices.shape[0], 4), np.float32)
-            rest[:, :3] = m.vertices
-            self._skin_in = [ctx.buffer(rest.tobytes()), ctx.buffer(m.joints.astype("i4").tobytes()),
-                             ctx.buffer(m.weights.astype("f4").tobytes())]
+            rest = np.zeros((len(src), 4), np.float32)
+            rest[:, :3] = m.vertices[src]
+            self._skin_in = [ctx.buffer(rest.tobytes()), ctx.buffer(m.joints[src].astype("i4").tobytes()),
+                             ctx.buffer(m.weights[src].astype("f4").tobytes())]
             self._prog_skin = self.programs.get(compute="skin.comp")
         for with_tri in (False, True):
+            layout = with_tri and lay is not None
             defines = {"WITH_TRI": 1} if with_tri else {}
+            if layout:
+                defines["TRI_FROM_VERTEX"] = 1
             if self.tile_clip == "fragment":
                 defines["TILE_CLIP_FRAGMENT"] = 1
             if self.skinning == "compute":
                 prog = self.programs.get(vertex="skinned.vert", fragment="model.frag", defines=defines)
-                content = []  # the vertex shader reads skin.comp's buffer by gl_VertexID
+                # the vertex shader reads skin.comp's buffer by gl_VertexID
+                content = [(self._vbo_tri, "i", "in_tri")] if layout else []
+            elif layout:
+                prog = self.programs.get(vertex="skin.vert", fragment="model.frag", defines=defines)
+                bufs = [ctx.buffer(a[src].astype(f"{k}4").tobytes())
+                        for a, k in ((m.vertices, "f"), (m.joints, "i"), (m.weights, "f"))]
+                self._vbo_layout += bufs
+                content = [(bufs[0], "3f", "in_pos"), (bufs[1], "4i", "in_joints"),
+                           (bufs[2], "4f", "in_weights"), (self._vbo_tri, "i", "in_tri")]
             else:
                 prog = self.programs.get(vertex="skin.vert", fragment="model.frag", defines=defines)
                 content = [(self._vbo_pos, "3f", "in_pos"), (self._vbo_j, "4i", "in_joints"),
                            (self._vbo_w, "4f", "in_weights")]
             self._prog_model[with_tri] = prog
-            self._vao[with_tri] = ctx.vertex_array(prog, content, index_buffer=self._ibo,
+            self._vao[with_tri] = ctx.vertex_array(prog, content,
+                                                   index_buffer=self._ibo_tri if layout else self._ibo,
                                                    index_element_size=4)
         self._prog_fs = None
         self._vao_fs = None
+
+    @property
+    def _n_skinned(self) -> int:
+        """Vertices a candidate has in the skinned buffer of compute skinning."""
+        return self.mesh.n_vertices if self._layout is None else len(self._layout.source)
 
     def _run_fk(self, t, P, n):
         data = P.tobytes()
@@ -396,7 +437,7 @@ class ScoringEngine:
         self.ctx.memory_barrier()
 
     def _skinned_bytes_per_candidate(self) -> int:
-        return int(self.mesh.vertices.shape[0]) * 16
+        return self._n_skinned * 16
 
     def _upload_batch(self, t, X, n, poses=False):
         """The batch's skinning matrices into the bones texture (uploaded, or with ``poses``
@@ -408,7 +449,7 @@ class ScoringEngine:
             t["bones"].write(X.reshape(n, -1).tobytes(), viewport=(0, 0, 3 * self.n_bones, n))
         if self.skinning != "compute":
             return
-        prog, nv = self._prog_skin, int(self.mesh.vertices.shape[0])
+        prog, nv = self._prog_skin, self._n_skinned
         t["bones"].use(location=0)
         prog["bones"].value = 0
         prog["n_vertices"].value = nv
@@ -732,6 +773,10 @@ class ScoringEngine:
             ctx.cull_face = "front"
         else:
             ctx.disable(moderngl.CULL_FACE)
+        if with_tri and self._layout is not None:
+            # the triangle id is the last corner's (gltrack.render.provoking); GL's default, set
+            # here because other code on the context may change it
+            ctx.provoking_vertex = moderngl.LAST_VERTEX_CONVENTION
         clip_planes = range(4 if self.tile_clip == "distance" else 0)
         for i in clip_planes:
             ctx.enable_direct(_GL_CLIP_DISTANCE0 + i)
@@ -739,7 +784,7 @@ class ScoringEngine:
             prog["tile"].value = self.tile
         if self.skinning == "compute":
             t["skinned"].bind_to_storage_buffer(4)
-            prog["n_vertices"].value = int(self.mesh.vertices.shape[0])
+            prog["n_vertices"].value = self._n_skinned
         else:
             t["bones"].use(location=0)
             prog["bones"].value = 0
@@ -925,7 +970,7 @@ class ScoringEngine:
                 if tex is not None:
                     tex.release()
         for obj in (*self._vao.values(), *self._skin_in, self._vbo_pos, self._vbo_j, self._vbo_w,
-                    self._ibo, *([self._joints_buf] if self._joints_buf is not None else [])):
+                    self._ibo, *self._vbo_layout, *([self._joints_buf] if self._joints_buf is not None else [])):
             obj.release()
         if self._owns_programs:
             self.programs.release()
@@ -1004,17 +1049,37 @@ def is_software_renderer(renderer: str) -> bool:
     return any(k in str(renderer).lower() for k in _SOFTWARE_RENDERERS)
 
 
-def choose_skinning(renderer: str, version_code: int) -> str:
+def choose_skinning(renderer: str, version_code: int, n_cameras: int = 1) -> str:
     """Where ``skinning="auto"`` skins the vertices (unless ``GLTRACK_SKINNING`` says).
 
-    "compute" on a hardware GPU with GL 4.3: one pass for all cameras, on every multiprocessor
-    (measured on an NVIDIA H100, where by NVIDIA's description two of 66 processor clusters can
-    run vertex shaders: 4 cameras x 64 px 2.5x faster, one camera the same). "vertex" on a software renderer, where
-    the extra buffer pass costs about 10 % on one camera, and without GL 4.3.
+    Without GL 4.3 there is only "vertex". "compute" on a hardware GPU: one pass for all cameras,
+    on every multiprocessor (measured on an NVIDIA H100, where by NVIDIA's description two of
+    66 processor clusters can run vertex shaders: 4 cameras x 64 px 2.5x faster, one camera the
+    same). On a software renderer the compute pass costs about one camera's vertex skinning
+    (llvmpipe, 800 candidates at 64 px, draws with triangle ids, which have twice the vertices
+    of the depth-only draw: one camera 0.15 s a batch with "vertex" against 0.16-0.17, two
+    cameras 0.24-0.27 against 0.21-0.25, four 0.47-0.54 against 0.40-0.52), so there it is
+    "compute" from three cameras on and "vertex" below.
     """
-    if is_software_renderer(renderer) or int(version_code) < 430:
+    if int(version_code) < 430:
+        return "vertex"
+    if is_software_renderer(renderer) and int(n_cameras) < 3:
         return "vertex"
     return "compute"
+
+
+def choose_triangle_ids(renderer: str) -> str:
+    """How ``triangle_ids="auto"`` gets triangle ids (unless ``GLTRACK_TRIANGLE_IDS`` says).
+
+    "provoking" on a software renderer: llvmpipe assembles primitives on a slow path when the
+    fragment shader reads ``gl_PrimitiveID`` (800 candidates at 64 px, four cameras: the draw
+    with ids took 0.67-0.84 s against 0.41-0.56 s without them; the provoking layout, with
+    twice the vertices, 0.59-0.73 s with vertex skinning and 0.42-0.50 s with compute skinning).
+    "primitive" on a hardware GPU, where the id costs nothing measurable and the vertex
+    stage, which the layout doubles, is the scarce one (see :func:`choose_skinning`); the
+    layout has not been timed on a GPU.
+    """
+    return "provoking" if is_software_renderer(renderer) else "primitive"
 
 
 def choose_tile_clip(renderer: str) -> str:
