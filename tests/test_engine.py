@@ -486,24 +486,18 @@ def test_engine_path_choice():
     assert choose_tile_clip(h100) == "fragment"
 
 
-def test_engine_path_env_is_validated(ctx, body, monkeypatch):
+@pytest.mark.parametrize("env,attr,bad,good", [
+    ("GLTRACK_SKINNING", "skinning", "gpu", "vertex"),
+    ("GLTRACK_TILE_CLIP", "tile_clip", "scissor", "fragment"),
+    ("GLTRACK_TRIANGLE_IDS", "triangle_ids", "geometry", "primitive")])
+def test_engine_path_env_is_validated(ctx, body, monkeypatch, env, attr, bad, good):
     skel, dofs, kin, mesh = body
-    monkeypatch.setenv("GLTRACK_SKINNING", "gpu")
-    with pytest.raises(ValueError, match="GLTRACK_SKINNING"):
+    monkeypatch.setenv(env, bad)
+    with pytest.raises(ValueError, match=env):
         ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
-    monkeypatch.delenv("GLTRACK_SKINNING")
-    monkeypatch.setenv("GLTRACK_TILE_CLIP", "scissor")
-    with pytest.raises(ValueError, match="GLTRACK_TILE_CLIP"):
-        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
-    monkeypatch.setenv("GLTRACK_TILE_CLIP", "fragment")
+    monkeypatch.setenv(env, good)
     with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
-        assert eng.tile_clip == "fragment"
-    monkeypatch.setenv("GLTRACK_TRIANGLE_IDS", "geometry")
-    with pytest.raises(ValueError, match="GLTRACK_TRIANGLE_IDS"):
-        ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
-    monkeypatch.setenv("GLTRACK_TRIANGLE_IDS", "primitive")
-    with ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE) as eng:
-        assert eng.triangle_ids == "primitive"
+        assert getattr(eng, attr) == good
 
 
 @pytest.mark.parametrize("preset", ["full", "25", "upper"])

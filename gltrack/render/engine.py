@@ -282,7 +282,8 @@ class ScoringEngine:
         How the draws for the appearance and custom costs get each pixel's triangle id:
         "primitive" reads ``gl_PrimitiveID`` in the fragment shader, "provoking" draws a vertex
         layout in which every triangle has a provoking vertex of its own that carries its id
-        (:mod:`gltrack.render.provoking`; up to twice the vertices). The ids are the same.
+        (:mod:`gltrack.render.provoking`; up to twice the vertices). The ids are the same
+        but for a few pixels where two triangles meet (see that module).
         "auto": ``GLTRACK_TRIANGLE_IDS`` when it is set, else :func:`choose_triangle_ids`.
     fk : {"auto", "cpu", "gpu"}
         Where :meth:`score_poses` computes the skinning matrices from pose parameters: "cpu"
@@ -1075,9 +1076,8 @@ def choose_triangle_ids(renderer: str) -> str:
     fragment shader reads ``gl_PrimitiveID`` (800 candidates at 64 px, four cameras: the draw
     with ids took 0.67-0.84 s against 0.41-0.56 s without them; the provoking layout, with
     twice the vertices, 0.59-0.73 s with vertex skinning and 0.42-0.50 s with compute skinning).
-    "primitive" on a hardware GPU, where the id costs nothing measurable and the vertex
-    stage, which the layout doubles, is the scarce one (see :func:`choose_skinning`); the
-    layout has not been timed on a GPU.
+    "primitive" on a hardware GPU: the layout doubles the work of the vertex stage, the scarce
+    one there (see :func:`choose_skinning`), and it has not been timed on a GPU.
     """
     return "provoking" if is_software_renderer(renderer) else "primitive"
 

@@ -9,7 +9,9 @@ triangle's provoking vertex (GL's default is the last one), so every triangle ne
 vertex of its own. A closed mesh has about twice as many triangles as vertices, so a maximum
 matching of triangles to their own vertices covers about half of them; each of the others gets a
 copy of one of its vertices. The triangle order (the ids) and each triangle's winding (a cyclic
-rotation of its corners) are kept, so culling and the rendered images do not change.
+rotation of its corners) are kept, so culling and the covered pixels do not change. The rotated
+corners change the last bits of the interpolated depth, and with them the z-order of a few
+pixels where two triangles meet (1 pixel in 187,000 got another id on 300 random poses).
 """
 from __future__ import annotations
 
