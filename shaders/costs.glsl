@@ -33,7 +33,9 @@ float depth_pixel(float zo, float zm) {
 #endif
 
 vec4 pixel_costs(ivec2 p) {
-    ivec2 local = p % tile;
+    // tile is a power of two: a mask, not p % tile, because integer division has no SIMD
+    // form on a CPU (llvmpipe does it lane by lane)
+    ivec2 local = p & (tile - 1);
     vec4 c = vec4(0.0);
 #if defined(CH_DEPTH) || defined(CH_DEPTH_SMOOTH)
     float zo = texelFetch(obs_z, local, 0).r;
@@ -83,7 +85,7 @@ vec4 pixel_costs(ivec2 p) {
     int tri = int(model.g) - 1;
     if (tri >= 0 && !blocked) {
         uvec3 ob = texelFetch(obs_bits, local, 0).rgb;
-        uvec3 tb = texelFetch(tri_bits, ivec2(tri % 1024, tri / 1024), 0).rgb;
+        uvec3 tb = texelFetch(tri_bits, ivec2(tri & 1023, tri >> 10), 0).rgb;
         c.z = all(notEqual(ob & tb, uvec3(0u))) ? 1.0 : 0.0;
     }
 #endif

@@ -154,6 +154,56 @@ def test_silhouette_and_appearance_multi_camera(ctx, body, rng, path):
         assert np.ptp(sil) > 5 and app.max() > 10
 
 
+def test_reduce_groups_give_the_same_sums(ctx, body, rng):
+    """Both work groups of the compute reduction (``reduce_group``) give the CPU twin's counts
+    exactly (silhouette and appearance on four cameras, with an occluder) and its depth costs to
+    float rounding; other poses give other sums."""
+    if ctx.version_code < 430:
+        pytest.skip("the compute reduction needs OpenGL 4.3")
+    skel, dofs, kin, mesh = body
+    cs = cams(4, size=TILE, kind="colour")
+    truth = kin.skinning_matrices(random_poses(body, rng, 1))
+    S = kin.skinning_matrices(random_poses(body, rng, 10))
+    tri_bits = rng.integers(1, 2**32, size=(mesh.n_faces, 3), dtype=np.uint64).astype(np.uint32)
+    got, want = {}, {}
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, reduction="compute") as eng:
+        for c, cam in enumerate(cs):
+            fg = ref_render(mesh, truth, cam)[0][0] > 0
+            block = np.zeros_like(fg)
+            block[-TILE // 4:, TILE // 2:] = True
+            bits = (1 << rng.integers(0, 32, size=(TILE, TILE, 3))).astype(np.uint32)
+            eng.set_masks(c, fg, block)
+            eng.set_appearance(c, bits, tri_bits)
+            rz, rtri = ref_render(mesh, S, cam)
+            want[c] = (np.array([ref.silhouette_cost(z > 0, fg, block) for z in rz]),
+                       np.array([ref.appearance_score(t, bits, tri_bits, block) for t in rtri]))
+        for group in ("wide", "narrow"):
+            eng.reduce_group = group
+            got[group] = eng.score(S, ["silhouette", "appearance"])
+    np.testing.assert_array_equal(got["wide"], got["narrow"])  # counts: exact in any order
+    for c in range(len(cs)):
+        assert_close(got["narrow"][:, c, 1], want[c][0], f"silhouette cam{c}")
+        assert_close(got["narrow"][:, c, 2], want[c][1], f"appearance cam{c}")
+        assert np.ptp(want[c][0]) > 5 and np.ptp(want[c][1]) > 5
+    cam = cams()[0]
+    obs = ref_render(mesh, truth, cam)[0][0]
+    params = DepthCostParams(smooth=True)
+    depth = {}
+    with ScoringEngine(ctx, mesh, skel.n_joints, [cam], tile=TILE, depth_params=params,
+                       reduction="compute") as eng:
+        eng.set_depth(0, obs)
+        for group in ("wide", "narrow"):
+            eng.reduce_group = group
+            depth[group] = eng.score(S, ["depth"])[:, 0, 0]
+    rz, _ = ref_render(mesh, S, cam)
+    want_z = np.array([ref.depth_cost(z, obs, scale=params.scale, c_model_only=params.c_model_only,
+                                      c_obs_only=params.c_obs_only, smooth=True,
+                                      penalty=params.penalty) for z in rz])
+    np.testing.assert_allclose(depth["narrow"], depth["wide"], rtol=1e-5)  # the order of the sum
+    assert_close(depth["narrow"], want_z, "depth/narrow")
+    assert np.ptp(want_z) > 10
+
+
 def test_model_channel_gives_silhouette_iou(ctx, body, rng):
     """Channel "model" (|M minus B|) with the XOR count gives the IoU the CPU twin counts
     directly, on both reductions; a different pose gives a different IoU."""
@@ -412,6 +462,7 @@ def test_info_reports_backend_and_reduction():
     assert info["skinning"] in ("vertex", "compute") and info["tile_clip"] in ("distance", "fragment")
     assert info["skinning_4_cameras"] in ("vertex", "compute")
     assert info["triangle_ids"] in ("primitive", "provoking")
+    assert info["reduce_group"] in ("wide", "narrow")
     assert info["fk"] in ("cpu", "gpu")
     assert info["max_texture_size"] >= 2048
 
@@ -471,7 +522,8 @@ def test_triangle_id_paths_give_the_same_ids(ctx, body, rng):
 
 
 def test_engine_path_choice():
-    from gltrack.render.engine import choose_skinning, choose_tile_clip, choose_triangle_ids
+    from gltrack.render.engine import (choose_reduce_group, choose_skinning, choose_tile_clip,
+                                       choose_triangle_ids)
 
     llvmpipe, h100 = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
     assert choose_skinning(llvmpipe, 450) == "vertex"
@@ -484,12 +536,15 @@ def test_engine_path_choice():
     assert choose_triangle_ids(h100) == "primitive"
     assert choose_tile_clip(llvmpipe) == "distance"
     assert choose_tile_clip(h100) == "fragment"
+    assert choose_reduce_group(llvmpipe) == "narrow"
+    assert choose_reduce_group(h100) == "wide"
 
 
 @pytest.mark.parametrize("env,attr,bad,good", [
     ("GLTRACK_SKINNING", "skinning", "gpu", "vertex"),
     ("GLTRACK_TILE_CLIP", "tile_clip", "scissor", "fragment"),
-    ("GLTRACK_TRIANGLE_IDS", "triangle_ids", "geometry", "primitive")])
+    ("GLTRACK_TRIANGLE_IDS", "triangle_ids", "geometry", "primitive"),
+    ("GLTRACK_REDUCE_GROUP", "reduce_group", "huge", "wide")])
 def test_engine_path_env_is_validated(ctx, body, monkeypatch, env, attr, bad, good):
     skel, dofs, kin, mesh = body
     monkeypatch.setenv(env, bad)

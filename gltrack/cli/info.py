@@ -27,10 +27,13 @@ def run(args):
         info["egl_device"] = "GLTRACK_EGL_DEVICE / --device " + str(
             os.environ.get("GLTRACK_EGL_DEVICE") or args.device)
     try:
-        from gltrack.render.engine import (batch_side, choose_reduction, choose_skinning,
-                                           choose_tile_clip, choose_triangle_ids, target_memory)
+        from gltrack.render.engine import (batch_side, choose_reduce_group, choose_reduction,
+                                           choose_skinning, choose_tile_clip, choose_triangle_ids,
+                                           target_memory)
 
         info["reduction"] = choose_reduction(ctx)
+        info["reduce_group"] = (os.environ.get("GLTRACK_REDUCE_GROUP")
+                                or choose_reduce_group(info["renderer"]))
         # one camera (the depth rig), and four (a multi-view rig): software GL skins once for
         # all cameras only from three cameras on
         for key, n_cams in (("skinning", 1), ("skinning_4_cameras", 4)):

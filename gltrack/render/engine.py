@@ -290,6 +290,12 @@ class ScoringEngine:
         with :class:`gltrack.body.kinematics.Kinematics` (float64), "gpu" in a compute pass
         (``shaders/fk.comp``, float32; GL 4.3). "auto": ``GLTRACK_FK`` when it is set, else
         "cpu" (the GPU pass is not yet measured on a GPU).
+    reduce_group : {"auto", "wide", "narrow"}
+        The work group of the compute reduction (``shaders/reduce.comp``): "wide", 16x16
+        invocations per tile summed as a tree; "narrow", 8x8 whose partial sums one invocation
+        adds up. Counts (silhouette, appearance) come out the same; float costs (depth) differ in
+        their last bits, the order of the sum. "auto": ``GLTRACK_REDUCE_GROUP`` when it is set,
+        else :func:`choose_reduce_group`.
     """
 
     def __init__(self, ctx: moderngl.Context, mesh: BodyMesh, n_bones: int, cameras, *, tile: int = 64,
@@ -297,7 +303,8 @@ class ScoringEngine:
                  depth_params: DepthCostParams = DepthCostParams(), custom: CustomCost | None = None,
                  near: float = 0.05, far: float = 50.0, cull_back_faces: bool = True,
                  programs: ProgramCache | None = None, skinning: str = "auto",
-                 tile_clip: str = "auto", fk: str = "auto", triangle_ids: str = "auto"):
+                 tile_clip: str = "auto", fk: str = "auto", triangle_ids: str = "auto",
+                 reduce_group: str = "auto"):
         if tile < 16 or tile > 512 or tile & (tile - 1):
             raise ValueError(f"tile must be a power of two in 16..512, got {tile}")
         if reduction not in ("auto", "mipmap", "compute", "fastest"):
@@ -316,6 +323,8 @@ class ScoringEngine:
         fk = _engine_option(ctx, "fk", fk, "GLTRACK_FK", "cpu", ("cpu", "gpu"), needs_430="gpu")
         triangle_ids = _engine_option(ctx, "triangle_ids", triangle_ids, "GLTRACK_TRIANGLE_IDS",
                                       choose_triangle_ids(renderer), ("primitive", "provoking"))
+        reduce_group = _engine_option(ctx, "reduce_group", reduce_group, "GLTRACK_REDUCE_GROUP",
+                                      choose_reduce_group(renderer), ("wide", "narrow"))
         if not cameras:
             raise ValueError("at least one camera is needed")
         if mesh.joints.max() >= n_bones:
@@ -332,6 +341,7 @@ class ScoringEngine:
         self.tile_clip = tile_clip
         self.fk = fk
         self.triangle_ids = triangle_ids
+        self.reduce_group = reduce_group
         self.kin = None  # set_kinematics
         self._joints_buf = None
         self._layout = (provoking_layout(mesh.faces, mesh.n_vertices) if triangle_ids == "provoking"
@@ -826,6 +836,8 @@ class ScoringEngine:
     def _reduce(self, t, v, n, cols, rows, channels, method):
         defines = self._defines(channels)
         if method == "compute":
+            if self.reduce_group == "narrow":
+                defines = {**defines, "NARROW_GROUP": 1}
             prog = self.programs.get(compute="reduce.comp", defines=defines, aliases=self._aliases())
             self._bind_cost_inputs(prog, t, v, channels)
             prog["grid"].value = (cols, rows)
@@ -1080,6 +1092,20 @@ def choose_triangle_ids(renderer: str) -> str:
     one there (see :func:`choose_skinning`), and it has not been timed on a GPU.
     """
     return "provoking" if is_software_renderer(renderer) else "primitive"
+
+
+def choose_reduce_group(renderer: str) -> str:
+    """The compute reduction's work group for ``reduce_group="auto"`` (unless
+    ``GLTRACK_REDUCE_GROUP`` says).
+
+    "narrow" on a software renderer: llvmpipe runs a work group's invocations as coroutines in
+    SIMD batches, and each barrier switches all of them, so the wide group's tree of nine
+    barriers costs more than the 64 additions one invocation does after a single barrier (800
+    candidates at 64 px, silhouette and appearance: 28-31 ms a camera against 38-51 ms; with the
+    tile mask of ``costs.glsl`` 22 against 38-47). "wide" on a hardware GPU, where a narrow group
+    would leave a quarter of the threads to hide texture latency, and which has not timed it.
+    """
+    return "narrow" if is_software_renderer(renderer) else "wide"
 
 
 def choose_tile_clip(renderer: str) -> str:
