@@ -463,6 +463,7 @@ def test_info_reports_backend_and_reduction():
     assert info["skinning_4_cameras"] in ("vertex", "compute")
     assert info["triangle_ids"] in ("primitive", "provoking")
     assert info["reduce_group"] in ("wide", "narrow")
+    assert info["engine_workers"] >= 0
     assert info["fk"] in ("cpu", "gpu")
     assert info["max_texture_size"] >= 2048
 
@@ -606,3 +607,130 @@ def test_fk_env_is_validated(ctx, body, monkeypatch):
     monkeypatch.setenv("GLTRACK_FK", "cuda")
     with pytest.raises(ValueError, match="GLTRACK_FK"):
         ScoringEngine(ctx, mesh, skel.n_joints, cams(), tile=TILE)
+
+
+# ------------------------------------------------------------------ worker processes
+def test_worker_count_choice(monkeypatch):
+    from gltrack.render.engine import resolve_workers
+    from gltrack.render.workers import MAX_WORKERS, choose_workers, core_budget
+
+    assert choose_workers(True, 2) == 2 and choose_workers(True, 64) == MAX_WORKERS
+    assert choose_workers(True, 1) == 0 and choose_workers(False, 16) == 0  # a GPU draws alone
+    llvmpipe, h100 = "llvmpipe (LLVM 15.0.6, 256 bits)", "NVIDIA H100 80GB HBM3/PCIe/SSE2"
+    monkeypatch.delenv("GLTRACK_ENGINE_WORKERS", raising=False)
+    assert resolve_workers("auto", h100) == 0
+    # LP_NUM_THREADS is the process's share of the cores (gltrack batch sets it per job)
+    monkeypatch.setenv("LP_NUM_THREADS", "1")
+    assert core_budget() == 1 and resolve_workers("auto", llvmpipe) == 0
+    monkeypatch.setenv("LP_NUM_THREADS", "100000")
+    assert core_budget() == len(os.sched_getaffinity(0))
+    monkeypatch.delenv("LP_NUM_THREADS")
+    assert resolve_workers("auto", llvmpipe, "fastest") == 0  # it times its choice here
+    assert resolve_workers(3, h100) == 3 and resolve_workers("0", llvmpipe) == 0
+    with pytest.raises(ValueError, match="workers must be"):
+        resolve_workers(-1, llvmpipe)
+    monkeypatch.setenv("GLTRACK_ENGINE_WORKERS", "many")
+    with pytest.raises(ValueError, match="GLTRACK_ENGINE_WORKERS"):
+        resolve_workers("auto", llvmpipe)
+    monkeypatch.setenv("GLTRACK_ENGINE_WORKERS", "2")
+    assert resolve_workers("auto", h100) == 2 and resolve_workers(0, llvmpipe) == 0
+    assert resolve_workers("auto", llvmpipe, "fastest") == 0
+
+
+def _colour_engine(ctx, body, rng, cs, workers):
+    skel, dofs, kin, mesh = body
+    eng = ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, workers=workers)
+    truth = kin.skinning_matrices(random_poses(body, rng, 1))
+    tri_bits = rng.integers(1, 2**32, size=(mesh.n_faces, 3), dtype=np.uint64).astype(np.uint32)
+    for c, cam in enumerate(cs):
+        fg = ref_render(mesh, truth, cam)[0][0] > 0
+        block = np.zeros_like(fg)
+        block[: TILE // 4, : TILE // 2] = True
+        eng.set_masks(c, fg, block)
+        eng.set_appearance(c, (1 << rng.integers(0, 32, size=(TILE, TILE, 3))).astype(np.uint32),
+                           tri_bits)
+    return eng
+
+
+def test_workers_score_as_this_process_does(ctx, body, rng):
+    """Two worker processes score a 4-camera batch (silhouette, appearance) as the engine does
+    alone, and follow new masks, a new camera and pose parameters; small calls stay here.
+
+    Not bit for bit: a candidate's pixels depend on its tile's place in the grid (float rounding
+    of the tile transform moves an edge pixel), and a share has a smaller grid. Reordering one
+    batch does the same."""
+    skel, dofs, kin, mesh = body
+    cs = cams(4, size=TILE, kind="colour")
+    P = random_poses(body, rng, 138)  # two shares of 69: at least WORKER_MIN_SHARE each
+    S = kin.skinning_matrices(P)
+    chans = ["silhouette", "appearance"]
+    # both engines get the same random observations
+    one = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=0)
+    two = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=2)
+    with one, two:
+        small = two.score(S[:30], chans)
+        assert two._pool is None, "a call of fewer than 2 x 16 candidates stays in this process"
+        np.testing.assert_array_equal(small, one.score(S[:30], chans))
+        steps = []
+        steps.append((one.score(S, chans), two.score(S, chans)))
+        assert two._pool is not None and len(two._pool) == 2
+        fg = ref_render(mesh, kin.skinning_matrices(P[:1]), cs[0])[0][0] > 0
+        for e in (one, two):
+            e.set_masks(0, fg)  # the first candidate's own silhouette, no occluder
+        steps.append((one.score(S, chans), two.score(S, chans)))
+        moved = look_at_camera("moved", (0.5, 2.0, 2.6), (0, 0.8, 0), TILE, TILE, 45.0, kind="colour")
+        for e in (one, two):
+            e.set_camera(1, moved)
+            e.set_masks(1, fg)
+        steps.append((one.score(S, ["silhouette"]), two.score(S, ["silhouette"])))
+        for e in (one, two):
+            e.set_kinematics(kin)
+        # (camera 1 has no colour bits since it moved: silhouettes only from here)
+        steps.append((one.score_poses(P, ["silhouette"]), two.score_poses(P, ["silhouette"])))
+        assert two.evaluations == one.evaluations == 30 + 4 * len(S)
+    for k, (a, b) in enumerate(steps):
+        for c in range(4):
+            for slot in (1, 2):
+                assert_close(b[:, c, slot], a[:, c, slot], f"step {k} camera {c} slot {slot}")
+    # the new mask reached the workers: candidate 0 now fits camera 0 to a few edge pixels
+    assert steps[1][1][0, 0, 1] < 0.1 * steps[0][1][0, 0, 1]
+    assert not np.allclose(steps[2][1][:, 1, 1], steps[1][1][:, 1, 1]), "and the new camera"
+    # the workers' scores are those of the CPU twin too
+    rz, _ = ref_render(mesh, S, cs[0])
+    assert_close(steps[1][1][:, 0, 1], np.array([ref.silhouette_cost(z > 0, fg, None) for z in rz]),
+                 "workers vs reference")
+
+
+def test_dead_worker_falls_back_to_this_process(ctx, body, rng, caplog):
+    """A worker that dies costs a warning, not the run: the engine scores the call itself and
+    keeps doing so; release stops the workers that are left."""
+    import logging
+
+    skel, dofs, kin, mesh = body
+    cs = cams(2, size=TILE, kind="colour")
+    S = kin.skinning_matrices(random_poses(body, rng, 160))
+    one = _colour_engine(ctx, body, np.random.default_rng(3), cs, workers=0)
+    two = _colour_engine(ctx, body, np.random.default_rng(3), cs, workers=2)
+    with one:
+        want = one.score(S, ["silhouette"])
+    two.score(S, ["silhouette"])
+    procs = list(two._pool._procs)
+    procs[0].kill()
+    procs[0].wait()
+    with caplog.at_level(logging.WARNING, logger="gltrack.render.engine"):
+        got = two.score(S, ["silhouette"])
+    assert "engine workers failed" in caplog.text
+    assert two.workers == 0 and two._pool is None
+    assert all(p.poll() is not None for p in procs), "the surviving worker was stopped"
+    np.testing.assert_array_equal(got, want)  # scored here, as the one-process engine does
+    two.release()
+
+
+def test_release_stops_the_workers(ctx, body, rng):
+    skel, dofs, kin, mesh = body
+    eng = _colour_engine(ctx, body, rng, cams(1, size=TILE, kind="colour"), workers=2)
+    eng.score(kin.skinning_matrices(random_poses(body, rng, 128)), ["silhouette"])
+    procs = list(eng._pool._procs)
+    assert all(p.poll() is None for p in procs)
+    eng.release()
+    assert all(p.poll() is not None for p in procs)

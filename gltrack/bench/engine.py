@@ -109,9 +109,12 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     dict with the keys of the benchmark contract (``machine``, ``renderer``, ``triangles``,
     ``modes`` -> per-mode ``candidates_per_s``, ``baseline_candidates_per_s``, ``speedup``,
     ``max_rel_error_vs_reference``, ``bound_candidates_per_s``, ``fraction_of_bound``) plus
-    ``reduction``, ``skinning``, ``tile_clip`` and ``old_path_candidates_per_s`` (the engine
+    ``reduction``, ``skinning``, ``tile_clip``, ``old_path_candidates_per_s`` (the engine
     with vertex-shader skinning and clip distances, where this machine's path differs; else
-    None) per mode, and forward-kinematics throughput under ``fk``.
+    None), ``workers`` and ``workers_candidates_per_s`` (the engine with the worker processes
+    the machine gets by default, :func:`gltrack.render.engine.resolve_workers`; None without)
+    per mode, and forward-kinematics throughput under ``fk``. ``candidates_per_s`` and the
+    bound are one process's.
     """
     from gltrack.body.dofs import make_dofs
     from gltrack.body.kinematics import Kinematics
@@ -120,7 +123,7 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
     from gltrack.gl.context import capabilities, shared_context
     from gltrack.render import reference as ref
     from gltrack.bench.baseline import run_baseline_in_subprocess
-    from gltrack.render.engine import ScoringEngine
+    from gltrack.render.engine import ScoringEngine, resolve_workers
 
     rng = np.random.default_rng(seed)
     skel = default_skeleton(1.75)
@@ -183,6 +186,14 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
                 with engine(eng.reduction, skinning=OLD_PATH[0], tile_clip=OLD_PATH[1]) as old:
                     old_rate = n / _median_time(lambda: old.score(S, channels), repeats)
             bound = _bound_rate(ctx, eng, n, repeats)
+            # The worker processes this machine's engines get by default (none on a GPU), timed
+            # apart: the bound is one process's, so the fraction of it stays the one-process one.
+            n_workers = resolve_workers("auto", caps.renderer)
+            workers_rate = None
+            if n_workers:
+                with engine(eng.reduction, workers=n_workers) as par:
+                    par.score(S, channels)  # starts the workers
+                    workers_rate = n / _median_time(lambda: par.score(S, channels), repeats)
             # Engine vs the independent CPU reference on a subset of the candidates.
             k = 6 if quick else 12
             got = eng.score(S[:k], channels)
@@ -205,7 +216,8 @@ def bench_engine(quick: bool = False, modes=None, with_baseline: bool = True, se
             reduction = eng.reduction
         entry = {"tile": tile, "cameras": n_cams, "channels": list(channels), "reduction": reduction,
                  "skinning": path[0], "tile_clip": path[1], "candidates_per_s": rate,
-                 "old_path_candidates_per_s": old_rate, "bound_candidates_per_s": bound,
+                 "old_path_candidates_per_s": old_rate, "workers": n_workers,
+                 "workers_candidates_per_s": workers_rate, "bound_candidates_per_s": bound,
                  "fraction_of_bound": rate / bound,
                  "max_rel_error_vs_reference": max(errs) if errs else None}
         if with_baseline:

@@ -44,18 +44,23 @@ def _table(res):
              f"triangles: {res['triangles']}, candidates per run: {res['candidates']}",
              f"FK:        {fk['poses_per_s']:.0f} poses/s ({fk['seconds'] * 1e3:.1f} ms for 10,000 poses, "
              f"{fk['dofs']} DOF)", "",
-             f"{'mode':16s} {'cand/s':>10s} {'old path':>10s} {'baseline':>10s} {'speedup':>8s} "
+             f"{'mode':16s} {'cand/s':>10s} {'old path':>10s} {'workers':>10s} {'baseline':>10s} {'speedup':>8s} "
              f"{'bound':>10s} {'of bound':>8s} {'ref err':>8s}  reduction skinning+tile clip"]
     for name, m in res["modes"].items():
         lines.append(" ".join([
             f"{name:16s}", _fmt(m["candidates_per_s"], "10.0f", 10),
             _fmt(m.get("old_path_candidates_per_s"), "10.0f", 10),
+            _fmt(m.get("workers_candidates_per_s"), "10.0f", 10),
             _fmt(m.get("baseline_candidates_per_s"), "10.1f", 10), _fmt(m.get("speedup"), "8.1f", 8),
             _fmt(m["bound_candidates_per_s"], "10.0f", 10), _fmt(m["fraction_of_bound"], "8.2f", 8),
             _fmt(m.get("max_rel_error_vs_reference"), "8.4f", 8),
             f" {m['reduction']:9s} {m.get('skinning', 'vertex')}+{m.get('tile_clip', 'distance')}"]))
     lines.append("old path: the engine with vertex-shader skinning and clip distances, where this "
                  "machine's path differs (gltrack info)")
+    n_workers = max((m.get("workers") or 0 for m in res["modes"].values()), default=0)
+    if n_workers:
+        lines.append(f"workers: the engine scoring each batch in {n_workers} worker processes "
+                     "(software GL's default, one per core; GLTRACK_ENGINE_WORKERS)")
     return "\n".join(lines)
 
 

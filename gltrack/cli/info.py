@@ -29,7 +29,7 @@ def run(args):
     try:
         from gltrack.render.engine import (batch_side, choose_reduce_group, choose_reduction,
                                            choose_skinning, choose_tile_clip, choose_triangle_ids,
-                                           target_memory)
+                                           resolve_workers, target_memory)
 
         info["reduction"] = choose_reduction(ctx)
         info["reduce_group"] = (os.environ.get("GLTRACK_REDUCE_GROUP")
@@ -43,6 +43,11 @@ def run(args):
         info["triangle_ids"] = (os.environ.get("GLTRACK_TRIANGLE_IDS")
                                 or choose_triangle_ids(info["renderer"]))
         info["fk"] = os.environ.get("GLTRACK_FK") or "cpu"  # where score_poses runs FK
+        # processes that score the shares of a large batch (gltrack.render.workers)
+        try:
+            info["engine_workers"] = resolve_workers("auto", info["renderer"])
+        except ValueError as e:  # a bad GLTRACK_ENGINE_WORKERS: say so, as the engine would
+            info["engine_workers"] = f"error: {e}"
         # the largest batch the engine scores in one pass at the depth trackers' 64-pixel tile
         side = batch_side(info["max_texture_size"], 64,
                           target_memory(info["renderer"], os.environ.get("GLTRACK_GPU_MEMORY_MB")))
