@@ -661,7 +661,7 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
     batch does the same."""
     skel, dofs, kin, mesh = body
     cs = cams(4, size=TILE, kind="colour")
-    P = random_poses(body, rng, 138)  # two shares of 69: at least WORKER_MIN_SHARE each
+    P = random_poses(body, rng, 138)  # two shares of 69 x 4 cameras: WORKER_MIN_WORK each
     S = kin.skinning_matrices(P)
     chans = ["silhouette", "appearance"]
     # both engines get the same random observations
@@ -669,7 +669,7 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
     two = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=2)
     with one, two:
         small = two.score(S[:30], chans)
-        assert two._pool is None, "a call of fewer than 2 x 16 candidates stays in this process"
+        assert two._pool is None, "30 x 4 < 2 x WORKER_MIN_WORK: the call stays in this process"
         np.testing.assert_array_equal(small, one.score(S[:30], chans))
         steps = []
         steps.append((one.score(S, chans), two.score(S, chans)))

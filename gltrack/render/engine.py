@@ -61,11 +61,13 @@ _GL_CLIP_DISTANCE0 = 0x3000
 _TRI_BITS_WIDTH = 1024
 #: A view's observation textures: attribute of ``_View`` -> (components, dtype).
 _TEXTURES = {"obs_z": (1, "f4"), "obs_mask": (2, "f4"), "obs_bits": (3, "u4"), "tri_bits": (3, "u4")}
-#: Fewest candidates a worker process scores in one call (``ScoringEngine(workers=...)``):
-#: a call of fewer stays in this process. Measured on llvmpipe (2 cores, 2 workers, one camera
-#: at 64 px): 32 candidates 6.7 ms against 9.5 in one process, 91 15 against 21; four cameras,
-#: 32 candidates 15 against 30 ms. The depth climb's calls of ~8 candidates stay here.
-WORKER_MIN_SHARE = 16
+#: Least work, in candidates x cameras, a worker process gets in one call
+#: (``ScoringEngine(workers=...)``): a smaller call stays in this process. Measured on llvmpipe
+#: (2 cores, 2 workers, 64 px): four cameras, 32 candidates 15 ms against 30 in one process, 91
+#: 58 against 72, 800 0.37-0.39 s against 0.45-0.52; one camera, 32 candidates 6.7 against 9.5
+#: ms. But the depth climb (one camera, ~55 candidates a call) ran no faster with workers
+#: (hc+ep 2.86 / 3.14 / 3.77 frames/s against 2.89 / 2.84 / 3.80), so its calls stay here.
+WORKER_MIN_WORK = 64
 #: Bytes of render target per grid pixel: depth (4) + depth and triangle id (8) + depth buffer
 #: (4) + RGBA32F cost with its mipmaps (16 * 4/3), rounded up.
 TARGET_BYTES_PER_PIXEL = 40
@@ -306,7 +308,8 @@ class ScoringEngine:
         else :func:`choose_reduce_group`.
     workers : int or "auto"
         Helper processes (:mod:`gltrack.render.workers`) that score equal shares of every call
-        of at least ``workers * WORKER_MIN_SHARE`` candidates, each with a context of its own;
+        of at least ``workers * WORKER_MIN_WORK`` candidates x cameras, each with a context of
+        its own;
         0 scores everything here. The scores are this process's up to an edge pixel here and
         there (a candidate's pixels depend on its tile's place in the grid, and a share has a
         smaller grid). They start on the first such call; if one cannot start or dies, the
@@ -808,7 +811,7 @@ class ScoringEngine:
         """Equal shares of ``X`` scored by the worker processes, or None: too few candidates,
         no workers, or they failed (logged; the engine then scores everything itself)."""
         k = self.workers
-        if k < 1 or len(X) < k * WORKER_MIN_SHARE:
+        if k < 1 or len(X) * len(self.views) < k * WORKER_MIN_WORK:
             return None
         try:
             if self._pool is None:
