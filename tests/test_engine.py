@@ -659,6 +659,9 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
     Not bit for bit: a candidate's pixels depend on its tile's place in the grid (float rounding
     of the tile transform moves an edge pixel), and a share has a smaller grid. Reordering one
     batch does the same."""
+    from gltrack.render import workers as W
+
+    W.close_shared_pool()  # a pool of two, whatever earlier tests started
     skel, dofs, kin, mesh = body
     cs = cams(4, size=TILE, kind="colour")
     P = random_poses(body, rng, 138)  # two shares of 69 x 4 cameras: WORKER_MIN_WORK each
@@ -669,11 +672,12 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
     two = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=2)
     with one, two:
         small = two.score(S[:30], chans)
-        assert two._pool is None, "30 x 4 < 2 x WORKER_MIN_WORK: the call stays in this process"
+        assert W.current_pool() is None, "30 x 4 < 2 x WORKER_MIN_WORK: it stays in this process"
         np.testing.assert_array_equal(small, one.score(S[:30], chans))
         steps = []
         steps.append((one.score(S, chans), two.score(S, chans)))
-        assert two._pool is not None and len(two._pool) == 2
+        pool = W.current_pool()
+        assert pool is not None and len(pool) == 2 and two._on_workers == pool.generation
         fg = ref_render(mesh, kin.skinning_matrices(P[:1]), cs[0])[0][0] > 0
         for e in (one, two):
             e.set_masks(0, fg)  # the first candidate's own silhouette, no occluder
@@ -703,9 +707,12 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
 
 def test_dead_worker_falls_back_to_this_process(ctx, body, rng, caplog):
     """A worker that dies costs a warning, not the run: the engine scores the call itself and
-    keeps doing so; release stops the workers that are left."""
+    keeps doing so, the pool is stopped, and the next engine that wants workers gets a new one."""
     import logging
 
+    from gltrack.render import workers as W
+
+    W.close_shared_pool()
     skel, dofs, kin, mesh = body
     cs = cams(2, size=TILE, kind="colour")
     S = kin.skinning_matrices(random_poses(body, rng, 160))
@@ -714,23 +721,43 @@ def test_dead_worker_falls_back_to_this_process(ctx, body, rng, caplog):
     with one:
         want = one.score(S, ["silhouette"])
     two.score(S, ["silhouette"])
-    procs = list(two._pool._procs)
+    old = W.current_pool()
+    procs = list(old._procs)
     procs[0].kill()
     procs[0].wait()
     with caplog.at_level(logging.WARNING, logger="gltrack.render.engine"):
         got = two.score(S, ["silhouette"])
     assert "engine workers failed" in caplog.text
-    assert two.workers == 0 and two._pool is None
+    assert two.workers == 0 and W.current_pool() is None
     assert all(p.poll() is not None for p in procs), "the surviving worker was stopped"
     np.testing.assert_array_equal(got, want)  # scored here, as the one-process engine does
     two.release()
+    with _colour_engine(ctx, body, np.random.default_rng(3), cs, workers=2) as three:
+        again = three.score(S, ["silhouette"])
+        assert W.current_pool().generation > old.generation and three._on_workers
+    for c in range(len(cs)):
+        assert_close(again[:, c, 1], want[:, c, 1], f"a new pool, camera {c}")
 
 
-def test_release_stops_the_workers(ctx, body, rng):
+def test_one_pool_serves_every_engine(ctx, body, rng):
+    """Engines share the process's pool (its size is the core budget, not engines x cores);
+    releasing one drops its copies and leaves the pool to the others; closing the pool stops
+    the processes."""
+    from gltrack.render import workers as W
+
+    W.close_shared_pool()
     skel, dofs, kin, mesh = body
-    eng = _colour_engine(ctx, body, rng, cams(1, size=TILE, kind="colour"), workers=2)
-    eng.score(kin.skinning_matrices(random_poses(body, rng, 128)), ["silhouette"])
-    procs = list(eng._pool._procs)
-    assert all(p.poll() is None for p in procs)
-    eng.release()
+    S = kin.skinning_matrices(random_poses(body, rng, 128))
+    a = _colour_engine(ctx, body, rng, cams(1, size=TILE, kind="colour"), workers=2)
+    b = _colour_engine(ctx, body, rng, cams(1, size=TILE, kind="colour"), workers=2)
+    a.score(S, ["silhouette"])
+    pool = W.current_pool()
+    want_b = b.score(S, ["silhouette"])
+    assert W.current_pool() is pool and a._on_workers == b._on_workers == pool.generation
+    procs = list(pool._procs)
+    a.release()
+    assert W.current_pool() is pool and all(p.poll() is None for p in procs)
+    np.testing.assert_array_equal(b.score(S, ["silhouette"]), want_b)  # b's copy is still there
+    b.release()
+    W.close_shared_pool()
     assert all(p.poll() is not None for p in procs)

@@ -37,6 +37,7 @@ be undistorted before they are handed over.
 """
 from __future__ import annotations
 
+import itertools
 import logging
 import os
 import time
@@ -50,7 +51,8 @@ from gltrack.body.mesh import BodyMesh
 from gltrack.gl.context import park_framebuffer
 from gltrack.gl.programs import ProgramCache
 from gltrack.render.provoking import provoking_layout
-from gltrack.render.workers import EnginePool, WorkerError, choose_workers, core_budget
+from gltrack.render import workers as worker_pool
+from gltrack.render.workers import WorkerError, choose_workers, core_budget
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +70,7 @@ _TEXTURES = {"obs_z": (1, "f4"), "obs_mask": (2, "f4"), "obs_bits": (3, "u4"), "
 #: ms. But the depth climb (one camera, ~55 candidates a call) ran no faster with workers
 #: (hc+ep 2.86 / 3.14 / 3.77 frames/s against 2.89 / 2.84 / 3.80), so its calls stay here.
 WORKER_MIN_WORK = 64
+_ENGINE_IDS = itertools.count()
 #: Bytes of render target per grid pixel: depth (4) + depth and triangle id (8) + depth buffer
 #: (4) + RGBA32F cost with its mipmaps (16 * 4/3), rounded up.
 TARGET_BYTES_PER_PIXEL = 40
@@ -364,7 +367,8 @@ class ScoringEngine:
         self.triangle_ids = triangle_ids
         self.reduce_group = reduce_group
         self.workers = resolve_workers(workers, renderer, reduction)
-        self._pool = None
+        self._engine_id = next(_ENGINE_IDS)
+        self._on_workers = 0  # generation of the worker pool that holds this engine's copy
         # what the workers must mirror: key -> value, and the keys not yet sent (in order)
         self._mirror: dict = {}
         self._unsent: list = []
@@ -810,30 +814,39 @@ class ScoringEngine:
     def _score_on_workers(self, X, channels, poses):
         """Equal shares of ``X`` scored by the worker processes, or None: too few candidates,
         no workers, or they failed (logged; the engine then scores everything itself)."""
-        k = self.workers
-        if k < 1 or len(X) * len(self.views) < k * WORKER_MIN_WORK:
+        if self.workers < 1 or len(X) * len(self.views) < self.workers * WORKER_MIN_WORK:
             return None
         try:
-            if self._pool is None:
+            pool = worker_pool.shared_pool(self.workers)
+            spec = None
+            if self._on_workers != pool.generation:
                 spec = {"mesh": self.mesh, "n_bones": self.n_bones,
                         "cameras": [v.camera for v in self.views], "options": self._worker_options}
-                self._pool = EnginePool(k, spec)
-                # a worker starts with the cameras of the spec; it needs every observation
+                # a copy starts with the cameras of the spec; it needs every observation
                 self._unsent = [key for key in self._mirror if key[0] != "camera"]
             state = [(key, self._mirror[key]) for key in self._unsent if key in self._mirror]
-            parts = self._pool.score(np.array_split(X, k), state, channels, poses)
+            parts = pool.score(self._engine_id, spec, np.array_split(X, len(pool)), state,
+                               channels, poses)
+            self._on_workers = pool.generation
             self._unsent = []
             return np.concatenate(parts)
         except WorkerError as e:
             log.warning("engine workers failed, scoring in this process from now on: %s", e)
-            self._close_pool()
+            worker_pool.close_shared_pool()  # every engine's copies went with it
+            self._on_workers = 0
             self.workers = 0
             return None
 
-    def _close_pool(self) -> None:
-        if self._pool is not None:
-            self._pool.close()
-            self._pool = None
+    def _drop_from_workers(self) -> None:
+        """Release this engine's copies in the workers (the pool itself lives on)."""
+        pool = worker_pool.current_pool()
+        if pool is not None and self._on_workers == pool.generation:
+            try:
+                pool.drop(self._engine_id)
+            except WorkerError as e:
+                log.warning("engine workers failed: %s", e)
+                worker_pool.close_shared_pool()
+        self._on_workers = 0
 
     def _score_batch(self, X, channels, poses=False):
         n = X.shape[0]
@@ -1059,7 +1072,7 @@ class ScoringEngine:
         """Free every GL object the engine made (idempotent)."""
         if self._released:
             return
-        self._close_pool()
+        self._drop_from_workers()
         # moderngl re-binds "the previous framebuffer" when it creates the next one; if that is
         # one of ours after release, the next engine gets GL_INVALID_OPERATION. Park the binding
         # on a tiny framebuffer that lives as long as the context.

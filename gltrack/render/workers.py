@@ -13,11 +13,15 @@ pickled replies on a copy of its stdout (its own stdout goes to stderr, so stray
 corrupt the stream). No ``multiprocessing``: its "spawn" start re-imports the user's main
 script in every child, which runs an unguarded script a second time.
 
-The :class:`~gltrack.render.engine.ScoringEngine` that owns a pool keeps its own uploads and
-sends each worker the observations that changed since its last request, with the request.
+One pool serves the whole process (:func:`shared_pool`). Each
+:class:`~gltrack.render.engine.ScoringEngine` that uses it keeps its own uploads and sends the
+workers its description with its first request and the observations that changed since its
+last request with each one; the workers hold a copy of every such engine until it is released.
 """
 from __future__ import annotations
 
+import atexit
+import itertools
 import logging
 import os
 import pickle
@@ -71,13 +75,16 @@ def choose_workers(software: bool, cores: int) -> int:
 
 
 class EnginePool:
-    """Worker processes, each with an engine built from the same description.
+    """Worker processes that host the engines of this process, each under its id.
+
+    One pool serves every engine of the process (:func:`shared_pool`), so the number of
+    processes stays the core budget however many engines there are (the body estimate keeps one
+    per frame it fits). A worker builds an engine from its description on the first request
+    that names it, and drops it on :meth:`drop`.
 
     Parameters
     ----------
     n : int >= 1, number of workers
-    spec : dict, pickled to every worker: ``mesh``, ``n_bones``, ``cameras`` and ``options``
-        (keyword arguments of ``ScoringEngine``, every choice resolved)
 
     Raises
     ------
@@ -85,7 +92,7 @@ class EnginePool:
         A worker could not start (no GL context, an import failed); none is left running.
     """
 
-    def __init__(self, n: int, spec: dict):
+    def __init__(self, n: int):
         env = dict(os.environ)
         # the workers import this very gltrack, however this process found it
         root = str(Path(__file__).resolve().parents[2])
@@ -100,22 +107,26 @@ class EnginePool:
                     [sys.executable, "-m", "gltrack.render.workers"], stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE, env=env))
             for p in self._procs:
-                self._send(p, ("start", spec))
-            for p in self._procs:
-                self._recv(p)
+                self._recv(p)  # "ready": the context is made
         except WorkerError:
             self.close()
             raise
+        # which pool: an engine whose copy went with an earlier pool sends its description again
+        self.generation = next(_GENERATIONS)
         log.info("%d engine worker processes started", len(self._procs))
 
     def __len__(self) -> int:
         return len(self._procs)
 
-    def score(self, shares, state, channels, poses) -> list:
+    def score(self, engine_id: int, spec, shares, state, channels, poses) -> list:
         """Score one share on every worker, all at once.
 
         Parameters
         ----------
+        engine_id : int, the engine's id in the workers
+        spec : dict or None, the engine's description on its first request (pickled to every
+            worker: ``mesh``, ``n_bones``, ``cameras`` and ``options``, the keyword arguments
+            of ``ScoringEngine`` with every choice resolved); None once they have it
         shares : list of ``len(self)`` arrays, float32 skinning matrices (n_i, B, 3, 4) or, with
             ``poses``, pose parameters (n_i, D)
         state : list of (key, value), observations changed since the last request
@@ -130,8 +141,15 @@ class EnginePool:
         if len(shares) != len(self._procs):
             raise ValueError(f"{len(shares)} shares for {len(self._procs)} workers")
         for p, X in zip(self._procs, shares):
-            self._send(p, ("score", state, X, tuple(channels), bool(poses)))
+            self._send(p, ("score", int(engine_id), spec, state, X, tuple(channels), bool(poses)))
         return [self._recv(p) for p in self._procs]
+
+    def drop(self, engine_id: int) -> None:
+        """Release the workers' copies of an engine."""
+        for p in self._procs:
+            self._send(p, ("drop", int(engine_id)))
+        for p in self._procs:
+            self._recv(p)
 
     def close(self) -> None:
         """Stop every worker (idempotent)."""
@@ -171,24 +189,64 @@ class EnginePool:
         return value
 
 
+_POOL: EnginePool | None = None
+_START_FAILED = False
+_GENERATIONS = itertools.count(1)
+
+
+def current_pool() -> EnginePool | None:
+    """The process's pool if one is running (nothing is started)."""
+    return _POOL
+
+
+def shared_pool(n: int) -> EnginePool:
+    """The process's pool, started with ``n`` workers on first use (later calls get it with
+    the size it started with).
+
+    Raises
+    ------
+    WorkerError
+        It cannot start, now or on an earlier try (then without trying again: a machine where
+        a worker cannot make a context will not get one on the next engine either).
+    """
+    global _POOL, _START_FAILED
+    if _POOL is None:
+        if _START_FAILED:
+            raise WorkerError("engine workers could not start earlier in this process")
+        try:
+            _POOL = EnginePool(n)
+        except WorkerError:
+            _START_FAILED = True
+            raise
+        atexit.register(close_shared_pool)
+    return _POOL
+
+
+def close_shared_pool() -> None:
+    """Stop the process's pool (after a worker died, or at exit); the next engine call that
+    wants workers starts a new one."""
+    global _POOL
+    if _POOL is not None:
+        _POOL.close()
+        _POOL = None
+
+
 def _serve(inp, out) -> None:
-    """A worker's loop: build the engine the first request describes, then score requests."""
+    """A worker's loop: make a context, then build, score with and drop engines by id."""
     def reply(status, value=None):
         pickle.dump((status, value), out, protocol=pickle.HIGHEST_PROTOCOL)
         out.flush()
 
     try:
-        spec = pickle.load(inp)[1]
         from gltrack.gl.context import create_context
         from gltrack.render.engine import ScoringEngine
 
         ctx = create_context()
-        eng = ScoringEngine(ctx, spec["mesh"], spec["n_bones"], spec["cameras"], workers=0,
-                            **spec["options"])
     except Exception as e:  # noqa: BLE001 - any failure is the owner's WorkerError
         reply("error", f"could not start: {type(e).__name__}: {e}")
         return
     reply("ok")
+    engines = {}
     while True:
         try:
             msg = pickle.load(inp)
@@ -197,13 +255,26 @@ def _serve(inp, out) -> None:
         if msg[0] == "stop":
             break
         try:
-            _, state, X, channels, poses = msg
+            if msg[0] == "drop":
+                eng = engines.pop(msg[1], None)
+                if eng is not None:
+                    eng.release()
+                reply("ok")
+                continue
+            _, engine_id, spec, state, X, channels, poses = msg
+            if engine_id not in engines:
+                if spec is None:
+                    raise RuntimeError(f"no description of engine {engine_id}")
+                engines[engine_id] = ScoringEngine(ctx, spec["mesh"], spec["n_bones"],
+                                                   spec["cameras"], workers=0, **spec["options"])
+            eng = engines[engine_id]
             for key, value in state:
                 eng._apply_mirrored(key, value)
             reply("ok", eng._score_all(X, eng._check_channels(channels), poses))
         except Exception as e:  # noqa: BLE001 - reported to the owner, which falls back
             reply("error", f"{type(e).__name__}: {e}")
-    eng.release()
+    for eng in engines.values():
+        eng.release()
     ctx.release()
 
 
