@@ -8,9 +8,9 @@ cannot issue draws from several threads either (moderngl holds the GIL; two cont
 threads took as long as one). Processes can: two of them, each with one rasteriser thread,
 scored 800 candidates on four cameras in 0.31 s against 0.43 s for one process.
 
-A worker is ``python -m gltrack.render.workers``: it reads pickled requests on stdin and writes
-pickled replies on a copy of its stdout (its own stdout goes to stderr, so stray prints cannot
-corrupt the stream). No ``multiprocessing``: its "spawn" start re-imports the user's main
+A worker is ``python -m gltrack.render.engine_worker``: it reads pickled requests on stdin and
+writes pickled replies on a copy of its stdout (its own stdout goes to stderr, so stray prints
+cannot corrupt the stream). No ``multiprocessing``: its "spawn" start re-imports the user's main
 script in every child, which runs an unguarded script a second time.
 
 One pool serves the whole process (:func:`shared_pool`). Each
@@ -104,7 +104,7 @@ class EnginePool:
         try:
             for _ in range(int(n)):
                 self._procs.append(subprocess.Popen(
-                    [sys.executable, "-m", "gltrack.render.workers"], stdin=subprocess.PIPE,
+                    [sys.executable, "-m", "gltrack.render.engine_worker"], stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE, env=env))
             for p in self._procs:
                 self._recv(p)  # "ready": the context is made
@@ -229,60 +229,3 @@ def close_shared_pool() -> None:
     if _POOL is not None:
         _POOL.close()
         _POOL = None
-
-
-def _serve(inp, out) -> None:
-    """A worker's loop: make a context, then build, score with and drop engines by id."""
-    def reply(status, value=None):
-        pickle.dump((status, value), out, protocol=pickle.HIGHEST_PROTOCOL)
-        out.flush()
-
-    try:
-        from gltrack.gl.context import create_context
-        from gltrack.render.engine import ScoringEngine
-
-        ctx = create_context()
-    except Exception as e:  # noqa: BLE001 - any failure is the owner's WorkerError
-        reply("error", f"could not start: {type(e).__name__}: {e}")
-        return
-    reply("ok")
-    engines = {}
-    while True:
-        try:
-            msg = pickle.load(inp)
-        except EOFError:
-            break
-        if msg[0] == "stop":
-            break
-        try:
-            if msg[0] == "drop":
-                eng = engines.pop(msg[1], None)
-                if eng is not None:
-                    eng.release()
-                reply("ok")
-                continue
-            _, engine_id, spec, state, X, channels, poses = msg
-            if engine_id not in engines:
-                if spec is None:
-                    raise RuntimeError(f"no description of engine {engine_id}")
-                engines[engine_id] = ScoringEngine(ctx, spec["mesh"], spec["n_bones"],
-                                                   spec["cameras"], workers=0, **spec["options"])
-            eng = engines[engine_id]
-            for key, value in state:
-                eng._apply_mirrored(key, value)
-            reply("ok", eng._score_all(X, eng._check_channels(channels), poses))
-        except Exception as e:  # noqa: BLE001 - reported to the owner, which falls back
-            reply("error", f"{type(e).__name__}: {e}")
-    for eng in engines.values():
-        eng.release()
-    ctx.release()
-
-
-def main() -> None:
-    out = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
-    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # prints cannot reach the reply stream
-    _serve(sys.stdin.buffer, out)
-
-
-if __name__ == "__main__":
-    main()
