@@ -1,7 +1,9 @@
 """The runner's judgement of a lost track (gltrack.track.lost.LossWatch); pure Python."""
 import numpy as np
 
-from gltrack.track.lost import FLOOR, RATIO, LossWatch
+import pytest
+
+from gltrack.track.lost import FLOOR, RATIO, SPREAD, LossWatch
 
 
 def test_absolute_threshold_until_there_are_good_frames():
@@ -35,3 +37,35 @@ def test_absolute_only_and_never():
     n = LossWatch(None)
     assert n.limit() is None and n.update(100.0) == 0
     assert LossWatch(0.45).update(float("nan")) == 0
+
+
+def test_a_check_that_kept_the_track_moves_the_limit_to_its_level():
+    """Masks that keep a good track near the absolute threshold: once a check has kept the
+    track at quality ~0.47, frames within the spread of that level are no longer bad (no check
+    every few frames for the same answer), frames clearly worse than it are; the level goes
+    into the checkpoint state and a re-start forgets it."""
+    w = LossWatch(0.45)
+    for q in (0.33, 0.34, 0.35):
+        w.update(q)
+    assert [w.update(q) for q in (0.46, 0.47, 0.48)] == [1, 2, 3]
+    w.reset()
+    w.confirm([0.46, 0.47, float("nan"), None, 0.48])
+    assert w.confirmed == pytest.approx(0.47)
+    assert w.limit() == pytest.approx((1 + SPREAD) * 0.47)
+    assert max(w.update(q) for q in (0.47, 0.5, 0.55, 0.48, 0.46)) == 0
+    assert [w.update(q) for q in (0.6, 0.62, 0.65)] == [1, 2, 3]  # worse than the level again
+    v = LossWatch(0.45)
+    v.set_state(w.get_state())
+    assert v.limit() == w.limit() and v.bad == 3
+    v.set_state({"good": [0.3], "bad": 0})  # a checkpoint from before the level existed
+    assert v.confirmed is None and v.limit() == 0.45
+    w.confirm([None, float("nan")])  # nothing judged: the level stays
+    assert w.confirmed == pytest.approx(0.47)
+    w.reset()
+    assert w.confirmed is None and w.limit() == 0.45
+    lower = LossWatch(0.45)
+    lower.confirm([0.2, 0.2])  # kept at a level under the threshold: the threshold stays
+    assert lower.limit() == 0.45
+    lost = LossWatch(0.45)
+    lost.confirm([1.0, 1.0, 1.0])  # every hypothesis as bad: the track is still checked
+    assert lost.limit() == RATIO * 0.45 and lost.update(1.0) == 1

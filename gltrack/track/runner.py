@@ -272,7 +272,9 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         :meth:`~gltrack.track.base.Tracker.lost_threshold`, or twice the recent good frames'
         quality, whichever is lower) for this many frames in a row is
         re-started: its automatic start on that frame and the current track are each tracked
-        ``decide_frames`` frames and the best is kept (:func:`_restart`); 0 never re-starts
+        ``decide_frames`` frames and the best is kept (:func:`_restart`); a check that keeps
+        the current track raises the limit to the quality it was kept at, plus its spread
+        (:meth:`~gltrack.track.lost.LossWatch.confirm`); 0 never re-starts
     check_start : with a pose file as ``init``, also try the automatic start (False: trust the
         file, e.g. a bench's true first pose in another DOF preset)
     force : with ``resume``, accept a dataset whose fingerprint differs from the one recorded
@@ -363,9 +365,12 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 watch.reset()
                 make = (lambda k, f=f: m.tracker(ds, body, ctx, opts,
                                                  np.random.default_rng([seed, f, k])))
-                tracker, decided = _restart(tracker, make, f,
-                                            range(f + 1, min(stop, f + 1 + max(decide_frames, 1))),
-                                            hooks)
+                kept, decided = _restart(tracker, make, f,
+                                         range(f + 1, min(stop, f + 1 + max(decide_frames, 1))),
+                                         hooks)
+                if kept is tracker and decided:  # nothing explained the frames better
+                    watch.confirm([e.info.get("quality") for e, _ in decided.values()])
+                tracker = kept
             checkpoint.save(out, method, f, est.params, tracker, watch, decided)
         timing = writer.finish()
         arrays = writer.arrays()
