@@ -191,6 +191,7 @@ class EnginePool:
 
 _POOL: EnginePool | None = None
 _START_FAILED = False
+_AT_EXIT = False  # close_shared_pool is registered with atexit (once, whatever the restarts)
 _GENERATIONS = itertools.count(1)
 
 
@@ -209,7 +210,7 @@ def shared_pool(n: int) -> EnginePool:
         It cannot start, now or on an earlier try (then without trying again: a machine where
         a worker cannot make a context will not get one on the next engine either).
     """
-    global _POOL, _START_FAILED
+    global _POOL, _START_FAILED, _AT_EXIT
     if _POOL is None:
         if _START_FAILED:
             raise WorkerError("engine workers could not start earlier in this process")
@@ -218,7 +219,9 @@ def shared_pool(n: int) -> EnginePool:
         except WorkerError:
             _START_FAILED = True
             raise
-        atexit.register(close_shared_pool)
+        if not _AT_EXIT:
+            atexit.register(close_shared_pool)
+            _AT_EXIT = True
     return _POOL
 
 
