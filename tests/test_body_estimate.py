@@ -196,9 +196,14 @@ def test_masks_that_spill_sideways_do_not_sink_the_estimate_through_the_floor(tm
 def test_depth_estimate_finds_a_short_stout_subject(tmp_path, ctx):
     true = _body(1.62)
     ds = _depth(tmp_path / "d", true)
-    est = estimate_body(ds, ctx, frames=[0, 3], rounds=1, rng=np.random.default_rng(0))
+    told = []
+    est = estimate_body(ds, ctx, frames=[0, 3], rounds=1, rng=np.random.default_rng(0),
+                        report=told.append)
     _check(est, true, 30.0)
     assert est.floor is None  # depth: background subtraction takes the soles with the floor
+    # each stage is reported as it ends, with the stature so far
+    assert [t.split(" done")[0] for t in told] == [f"body estimate: {c['stage']}" for c in est.costs]
+    assert float(told[-1].split(", ")[-1][:-2]) == pytest.approx(est.skeleton.height(), abs=0.01)
 
 
 def test_depth_estimate_follows_the_subject(tmp_path, ctx):

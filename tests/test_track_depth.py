@@ -182,10 +182,10 @@ def test_two_modes_keeps_the_turned_round_twin():
     assert len(two_modes(X[[0, 2]], [2.0, 1.0], 3)) == 1
 
 
-def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog):
+def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys):
     """Face-on, one depth frame fits the body and its turned-round twin about equally; the
     runner tracks both for a few frames and keeps the one that explains them: the walk is
-    tracked the right way round."""
+    tracked the right way round. The progress bar says what it does before the first frame."""
     import logging
 
     from gltrack.track.runner import track
@@ -193,11 +193,14 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog):
     make_depth_dataset(tmp_path / "ds", n=12)
     gt = Dataset.open(tmp_path / "ds").groundtruth()
     with caplog.at_level(logging.INFO, logger="gltrack.track.runner"):
-        track(tmp_path / "ds", "hc", tmp_path / "res", body="dataset", progress=False, decide_frames=6)
+        track(tmp_path / "ds", "hc", tmp_path / "res", body="dataset", progress=True, decide_frames=6)
     res = load_results(tmp_path / "res")
     err = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean()
     assert err < 0.06, err
     assert "start hypotheses tracked over 6 frames" in caplog.text
+    bar = capsys.readouterr().err
+    assert "--init auto: finding the start" in bar
+    assert "start hypotheses, each tracked 6 frames" in bar
 
 
 def test_decision_keeps_the_hypothesis_that_explains_the_frames():

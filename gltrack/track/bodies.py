@@ -85,7 +85,7 @@ def estimate_frames(dataset, start: int, stop: int, n_frames: int = 3, span: flo
 
 
 def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
-                 frames: tuple | None = None) -> tuple[BodyModel, dict]:
+                 frames: tuple | None = None, report=None) -> tuple[BodyModel, dict]:
     """The body a run tracks with, and its record for ``body.json``.
 
     Parameters
@@ -101,6 +101,8 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
     rng : numpy.random.Generator, for ``"estimate"`` (its automatic start)
     frames : (start, stop), optional, the tracked range (``"estimate"`` measures the body on its
         first frames)
+    report : callable ``report(text)``, optional, the estimate's progress
+        (:func:`~gltrack.track.body_estimate.estimate_body`)
 
     Returns
     -------
@@ -122,7 +124,8 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
         start, stop = frames if frames is not None else (0, dataset.frames)
         est = estimate_body(dataset, ctx, preset=preset or "full",
                             frames=estimate_frames(dataset, start, stop),
-                            rng=rng if rng is not None else np.random.default_rng(0))
+                            rng=rng if rng is not None else np.random.default_rng(0),
+                            report=report)
         log.info("body estimated from frames %s in %.1f s: stature %.3f m, girth scale %.2f",
                  est.frames, est.seconds, est.skeleton.height(), est.girth_scale)
         body = est.body

@@ -715,7 +715,7 @@ def _pick_frames(dataset, frames, n_frames: int, span: float) -> list[int]:
 
 def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                   n_frames: int = 3, span: float = 0.4, tile: int = 64, rounds: int = 2,
-                  lod: int = 1) -> BodyEstimate:
+                  lod: int = 1, report=None) -> BodyEstimate:
     """Estimate the subject's skeleton and girth from the first frames of ``dataset``.
 
     Needs no body record and no ground truth. See the module docstring for the method.
@@ -737,6 +737,8 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
     tile : int, engine tile side in pixels
     rounds : int, sweeps over the shape parameters (each followed by a pose re-fit)
     lod : int, level of detail of the returned body's procedural mesh
+    report : callable ``report(text)``, optional, told after each stage what was done (e.g. a
+        progress bar's status; the stages take 5-30 s each on software GL)
 
     Returns
     -------
@@ -772,6 +774,8 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                  views.unit, search.shape.height if search.shape else float("nan"),
                  time.perf_counter() - t0)
         log.debug("body estimate: per-frame costs %s", search.frame_costs())
+        if report is not None:
+            report(f"body estimate: {name} done, {search.shape.height:.2f} m")
 
     try:
         # the first frame with a person starts; later frames keep their spacing after it

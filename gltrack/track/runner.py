@@ -301,19 +301,30 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         raise ValueError(f"{ds.path}: frames {start}:{stop} (--frames) outside the dataset's "
                          f"0:{ds.frames}")
     ctx = ctx or shared_context()
-    if resume and body == "estimate" and (Path(out) / BODY).is_file():
-        # the body estimated when the run began, not a new estimate
-        body, body_rec = load_body_record(out)
-    else:  # the --body choice -> the BodyModel; the estimate's generator is its own
-        body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
-                                      rng=np.random.default_rng([seed, 7]))
-    rng = np.random.default_rng(seed)
-    tracker = m.tracker(ds, body, ctx, opts, rng)
-    writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
-                           resume=resume, overwrite=overwrite, body=body_rec,
-                           world=ds.meta.get("world"),  # joints/markers saved in the user's frame
-                           provenance=run_provenance(ds, dataclasses.asdict(opts), seed, init,
-                                                     (start, stop), body_rec), force=force)
+    # the bar is up from the start: the body estimate and the automatic start take a minute
+    # or two on a real take before the first frame, and the bar says what is being done
+    bar = tqdm(total=stop - start, desc=f"{method} {Path(ds.path).name}", unit="frame",
+               disable=not progress, leave=False)
+    try:
+        if resume and body == "estimate" and (Path(out) / BODY).is_file():
+            # the body estimated when the run began, not a new estimate
+            body, body_rec = load_body_record(out)
+        else:  # the --body choice -> the BodyModel; the estimate's generator is its own
+            bar.set_postfix_str(f"--body {body}")
+            body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
+                                          rng=np.random.default_rng([seed, 7]),
+                                          report=bar.set_postfix_str)
+        rng = np.random.default_rng(seed)
+        tracker = m.tracker(ds, body, ctx, opts, rng)
+        writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
+                               resume=resume, overwrite=overwrite, body=body_rec,
+                               world=ds.meta.get("world"),  # joints/markers in the user's frame
+                               provenance=run_provenance(ds, dataclasses.asdict(opts), seed,
+                                                         init, (start, stop), body_rec),
+                               force=force)
+    except BaseException:
+        bar.close()
+        raise
     decided = {}  # frames already tracked while deciding between start hypotheses
     watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
     finished = {}  # resumed: frame -> written params of the frames tracked again, not written
@@ -336,10 +347,13 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         else:
             checkpoint.discard(out)
             t0 = time.perf_counter()
+            bar.set_postfix_str(f"--init {init}: finding the start")
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
                                         check_start)
             tracker.start(first, starts[0])
             if len(starts) > 1 and decide_frames > 0:
+                bar.set_postfix_str(f"--init {init}: {len(starts)} start hypotheses, each "
+                                    f"tracked {min(stop - first, decide_frames)} frames")
                 # each other hypothesis gets its own tracker and a generator derived from the
                 # seed, so the choice and what follows are reproducible
                 make = (lambda k: m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k])))
@@ -348,9 +362,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                                                  hooks)
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
-        bar = tqdm(range(first, stop), desc=f"{method} {Path(ds.path).name}", unit="frame",
-                   disable=not progress, leave=False)
-        for f in bar:
+        bar.reset(total=stop - first)  # the rate and the time left count tracked frames only
+        for f in range(first, stop):
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
             if f in finished:  # written before a kill that came before its checkpoint
@@ -359,9 +372,11 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 writer.append(f, est.params, body.joints(p)[0], body.marker_positions(p)[0],
                               est.score, est.evaluations, secs, info=est.info,
                               engine_calls=est.engine_calls, engine_seconds=est.engine_seconds)
+            bar.update(1)
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
             bad = watch.update(est.info.get("quality"))
             if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
+                bar.set_postfix_str(f"frame {f} looks lost: re-start check")
                 watch.reset()
                 make = (lambda k, f=f: m.tracker(ds, body, ctx, opts,
                                                  np.random.default_rng([seed, f, k])))
@@ -378,6 +393,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     finally:
         tracker.close()
         writer.close()
+        bar.close()
     timing = dict(timing)
     timing["out"] = str(out)
     return timing
