@@ -32,6 +32,46 @@ from .registry import method as lookup
 
 log = logging.getLogger(__name__)
 
+#: seconds after which the progress bar shows up: bad input (a body or pose file that is
+#: missing or of the wrong shape, a results folder in the way) fails faster, and its one-line
+#: error then stands alone, in a log file too; what the bar tells before the first frame takes
+#: far longer (a body estimate: 40-100 s on a real take on software GL)
+BAR_DELAY = 2.0
+
+
+class _Progress:
+    """The run's progress bar (tqdm), opened on the first report after :data:`BAR_DELAY`
+    seconds or when the frames begin; before the first frame it says what the run does."""
+
+    def __init__(self, desc: str, total: int, enabled: bool):
+        self.desc, self.total, self.enabled = desc, int(total), bool(enabled)
+        self.t0 = time.perf_counter()
+        self.bar = None
+
+    def _open(self):
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, desc=self.desc, unit="frame",
+                            disable=not self.enabled, leave=False)
+        return self.bar
+
+    def say(self, text: str) -> None:
+        """Show ``text`` after the counts (before the delay: only on a bar already open)."""
+        if self.bar is not None or time.perf_counter() - self.t0 >= BAR_DELAY:
+            self._open().set_postfix_str(text)
+
+    def frames(self, n: int):
+        """The bar, counting ``n`` frames from 0 (the rate and the time left count tracked
+        frames only)."""
+        bar = self._open()
+        bar.reset(total=n)
+        return bar
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
 def initial_poses(init, dataset, body, tracker, start: int, check: bool = True) -> list[np.ndarray]:
     """The poses (D,) to start from, best first: the tracker's start hypotheses for ``"auto"``;
     the true pose for ``"groundtruth"``; for a pose file, its pose followed by the automatic
@@ -285,8 +325,6 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     -------
     dict, the ``timing.json`` contents plus ``out``.
     """
-    from tqdm import tqdm
-
     from gltrack.gl.context import shared_context
 
     m = lookup(method)
@@ -301,19 +339,18 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         raise ValueError(f"{ds.path}: frames {start}:{stop} (--frames) outside the dataset's "
                          f"0:{ds.frames}")
     ctx = ctx or shared_context()
-    # the bar is up from the start: the body estimate and the automatic start take a minute
-    # or two on a real take before the first frame, and the bar says what is being done
-    bar = tqdm(total=stop - start, desc=f"{method} {Path(ds.path).name}", unit="frame",
-               disable=not progress, leave=False)
+    # the body estimate and the automatic start take a minute or two on a real take before
+    # the first frame: the bar says what is being done
+    shown = _Progress(f"{method} {Path(ds.path).name}", stop - start, progress)
     try:
         if resume and body == "estimate" and (Path(out) / BODY).is_file():
             # the body estimated when the run began, not a new estimate
             body, body_rec = load_body_record(out)
         else:  # the --body choice -> the BodyModel; the estimate's generator is its own
-            bar.set_postfix_str(f"--body {body}")
+            shown.say(f"--body {body}")
             body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
                                           rng=np.random.default_rng([seed, 7]),
-                                          report=bar.set_postfix_str)
+                                          report=shown.say)
         rng = np.random.default_rng(seed)
         tracker = m.tracker(ds, body, ctx, opts, rng)
         writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
@@ -323,7 +360,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                                                          init, (start, stop), body_rec),
                                force=force)
     except BaseException:
-        bar.close()
+        shown.close()
         raise
     decided = {}  # frames already tracked while deciding between start hypotheses
     watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
@@ -347,13 +384,13 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         else:
             checkpoint.discard(out)
             t0 = time.perf_counter()
-            bar.set_postfix_str(f"--init {init}: finding the start")
+            shown.say(f"--init {init}: finding the start")
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
                                         check_start)
             tracker.start(first, starts[0])
             if len(starts) > 1 and decide_frames > 0:
-                bar.set_postfix_str(f"--init {init}: {len(starts)} start hypotheses, each "
-                                    f"tracked {min(stop - first, decide_frames)} frames")
+                shown.say(f"--init {init}: {len(starts)} start hypotheses, each "
+                          f"tracked {min(stop - first, decide_frames)} frames")
                 # each other hypothesis gets its own tracker and a generator derived from the
                 # seed, so the choice and what follows are reproducible
                 make = (lambda k: m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k])))
@@ -362,7 +399,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                                                  hooks)
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
-        bar.reset(total=stop - first)  # the rate and the time left count tracked frames only
+        bar = shown.frames(stop - first)
         for f in range(first, stop):
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
             p = est.params[None]
@@ -376,7 +413,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             bar.set_postfix(evals=est.evaluations, s=f"{secs:.2f}")
             bad = watch.update(est.info.get("quality"))
             if lost_frames > 0 and bad >= lost_frames and not decided and f + 1 < stop:
-                bar.set_postfix_str(f"frame {f} looks lost: re-start check")
+                shown.say(f"frame {f} looks lost: re-start check")
                 watch.reset()
                 make = (lambda k, f=f: m.tracker(ds, body, ctx, opts,
                                                  np.random.default_rng([seed, f, k])))
@@ -393,7 +430,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
     finally:
         tracker.close()
         writer.close()
-        bar.close()
+        shown.close()
     timing = dict(timing)
     timing["out"] = str(out)
     return timing
