@@ -72,6 +72,7 @@ class _Progress:
         if self.bar is not None:
             self.bar.close()
 
+
 def initial_poses(init, dataset, body, tracker, start: int, check: bool = True) -> list[np.ndarray]:
     """The poses (D,) to start from, best first: the tracker's start hypotheses for ``"auto"``;
     the true pose for ``"groundtruth"``; for a pose file, its pose followed by the automatic
