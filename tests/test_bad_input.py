@@ -180,6 +180,9 @@ CASES = {
     "track-init-wrong-shape-leaves-nothing": (
         lambda b, t: _track(_ds_with_background(b, t), "--body", "dataset", "--init",
                             str(_npy(t / "pose.npy", (7,)))), "pose.npy", "out", None),
+    "track-init-wrong-shape-before-the-body-estimate": (
+        lambda b, t: _track(_ds_with_background(b, t), "--init", str(_npy(t / "pose.npy", (7,)))),
+        "pose.npy", "out", None),
     "track-init-not-a-pose-array": (
         lambda b, t: _track(b / "ds", "--init", str(_npy(t / "pose.npy"))), "pose.npy", "out",
         None),
@@ -438,6 +441,27 @@ def test_bad_input(case, base, tmp_path, monkeypatch, capsys, caplog):
         rc = main(argv)
     err = capsys.readouterr().err
     _check(rc, err, caplog.records, mention, debris, tmp_path)
+
+
+def test_a_pose_file_of_the_wrong_shape_is_refused_before_the_body_estimate(base, tmp_path,
+                                                                            monkeypatch):
+    """The estimate takes a minute or more on a real take: the --init file is checked first
+    (against the DOF count of the preset the estimated body will have)."""
+    from gltrack.track import body_estimate
+
+    estimated = []
+
+    def never(*args, **kwargs):
+        estimated.append(args)
+        raise RuntimeError("the body was estimated before the pose file was checked")
+
+    monkeypatch.setattr(body_estimate, "estimate_body", never)
+    monkeypatch.chdir(tmp_path)
+    for dof in ("full", "upper"):
+        rc = main(_track(_ds_with_background(base, tmp_path / dof), "--dof", dof, "--init",
+                         str(_npy(tmp_path / f"{dof}.npy", (7,)))))
+        assert rc == 1 and not estimated
+        assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("case", ["track-meta-not-json", "synth-frames-beyond-clip",

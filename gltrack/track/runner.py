@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gltrack.body.dofs import make_dofs
+from gltrack.body.skeleton import default_skeleton
 from gltrack.data.dataset import Dataset
 from gltrack.data.provenance import recorded_range, run_provenance
 from gltrack.data.results import BODY, ResultsWriter, load_body_record
@@ -106,6 +108,12 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
         return p
     if init == "auto":
         return tracker.auto_init(start)
+    return read_pose_file(init, body.dofs.size)
+
+
+def read_pose_file(init, size: int) -> np.ndarray:
+    """(``size``,) the first pose of the .npy/.npz pose file ``init`` (a pose (D,), poses
+    (N, D), or an .npz with ``params``); ValueError naming the file when it is not one."""
     path = Path(init)
     if not path.is_file():
         raise ValueError(f"--init: {init!r} is neither groundtruth, auto nor a pose file")
@@ -116,8 +124,8 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
         arr = arr["params"]
     arr = np.asarray(arr, dtype=np.float64)
     arr = arr[0] if arr.ndim == 2 else arr
-    if arr.shape != (body.dofs.size,):
-        raise ValueError(f"{path}: pose has shape {arr.shape}, expected ({body.dofs.size},)")
+    if arr.shape != (size,):
+        raise ValueError(f"{path}: pose has shape {arr.shape}, expected ({size},)")
     return arr
 
 
@@ -348,6 +356,10 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             # the body estimated when the run began, not a new estimate
             body, body_rec = load_body_record(out)
         else:  # the --body choice -> the BodyModel; the estimate's generator is its own
+            if body == "estimate" and init not in ("auto", "groundtruth"):
+                # a pose file that cannot start this body is refused now, not after the
+                # estimate (a minute or more); an estimated body has the canonical joints
+                read_pose_file(init, make_dofs(default_skeleton(), preset or "full").size)
             shown.say(f"--body {body}")
             body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
                                           rng=np.random.default_rng([seed, 7]),
