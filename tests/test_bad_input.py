@@ -241,6 +241,10 @@ CASES = {
         lambda b, t: ["ingest", "--calibration", str(b / "ds" / "calibration.json"), "--video",
                       str(t / "cam0.mp4"), "--out", "out", "--frames", "x"], "--frames", "out",
         None),
+    "ingest-floor-garbage": (
+        lambda b, t: ["ingest", "--calibration", str(b / "ds" / "calibration.json"), "--video",
+                      str(t / "cam0.mp4"), "--out", "out", "--floor", "low"], "--floor", "out",
+        None),
     "ingest-fps-negative": (
         lambda b, t: ["ingest", "--calibration", str(b / "ds" / "calibration.json"), "--video",
                       str(t / "cam0.mp4"), "--out", "out", "--fps", "-1"], "--fps", "out", None),

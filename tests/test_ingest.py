@@ -81,6 +81,7 @@ def test_ingest_end_to_end(tmp_path, caplog, capsys):
         assert [_level(ds.colour(j, k)) for j in range(5)] == [1, 2, 3, 4, 5]
     meta = json.loads((out / "meta.json").read_text())
     assert meta["world"]["up"] == "z" and meta["source"]["scale"] == 0.5
+    assert meta["world"]["floor"] == 0.0  # auto: every camera 1.6 m above the origin plane
     assert meta["source"]["calibration_format"] == "pose2sim"
     assert meta["source"]["videos"]["cam_03"]["frames"] == [1, 2, 3, 4, 5]
     assert meta["source"]["videos"]["cam_01"]["path"] == str(videos[0].resolve())
@@ -136,6 +137,9 @@ def test_ingest_estimates_foreground_masks(tmp_path, capsys):
     ds = Dataset.open(out)
     meta = json.loads((out / "meta.json").read_text())
     assert meta["masks"]["method"] == "sequence-foreground" and meta["masks"]["passes"] == 2
+    # the floor is known (cameras 1.6 m above z = 0) and the ball floats: the support cue runs
+    # and finds nothing of the ball's colour on the floor under it
+    assert meta["world"]["floor"] == 0.0 and "support" in meta["masks"]["cues"]
     assert len(meta["masks"]["foreground_fraction"]) == 4
     assert not list(out.glob("*_background.png"))  # not an empty-scene frame: not written
     ious = []
@@ -154,8 +158,11 @@ def test_default_scale_fps_and_order_matching(tmp_path, caplog):
     save_calibration(calib, cams)
     videos = [_video(tmp_path / "a.mp4", 8), _video(tmp_path / "b.mp4", 8, start=3)]
     with caplog.at_level(logging.WARNING):
-        r = ingest(calib, videos, tmp_path / "ds", fps=5, progress=False, masks="none")
+        r = ingest(calib, videos, tmp_path / "ds", fps=5, progress=False, masks="none",
+                   floor=None)
     assert "matched by order" in caplog.text
+    assert r["floor"] is None
+    assert json.loads((tmp_path / "ds" / "meta.json").read_text())["world"]["floor"] is None
     assert r["scale"] == 1.0 and r["fps"] == 5.0 and r["frames"] == 4  # 64 px: never upscaled
     ds = Dataset.open(tmp_path / "ds")
     assert [_level(ds.colour(j, 0)) for j in range(4)] == [0, 2, 4, 6]
@@ -353,6 +360,18 @@ def test_up_axis_detection_and_rotations():
     assert detect_up(to_internal(yup, M.T))[0] == "y"  # after rotating the cameras: +Y up
 
 
+def test_floor_is_the_origin_plane_only_when_every_camera_is_above_it():
+    from gltrack.data.world import FLOOR_CAMERA_MIN, detect_floor, to_internal
+
+    M = internal_from_user("z")
+    rig = to_internal(_rig([(64, 48)] * 3), M.T)  # cameras 1.6 m above z = 0
+    assert detect_floor(rig) == 0.0
+    # the same rig with the origin on a desk 1.3 m up: cameras 0.3 m above it, the floor unknown
+    low = [look_at_camera(c.name, c.center - [0, 1.3, 0], [0.0, -0.4, 0.0], c.width, c.height,
+                          50.0) for c in rig]
+    assert min(c.center[1] for c in low) < FLOOR_CAMERA_MIN and detect_floor(low) is None
+
+
 def test_dataset_user_frame_is_validated(tmp_path):
     cams = _rig([(16, 12)])
     with DatasetWriter(tmp_path / "a", "multiview", 10, cams) as w:
@@ -365,6 +384,12 @@ def test_dataset_user_frame_is_validated(tmp_path):
     (tmp_path / "a" / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(ValueError, match=r"meta.json: field 'world.R_user_from_internal' must "
                                          r"be a rotation"):
+        Dataset.open(tmp_path / "a")
+    meta["world"] = {"up": "z", "R_user_from_internal": [[1, 0, 0], [0, 0, -1], [0, 1, 0]],
+                     "floor": "low"}
+    (tmp_path / "a" / "meta.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"meta.json: field 'world.floor' must be a finite "
+                                         r"number or null"):
         Dataset.open(tmp_path / "a")
 
 

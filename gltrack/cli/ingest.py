@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -34,6 +35,12 @@ def add_arguments(p):
     p.add_argument("--up", default="auto", choices=["auto", "x", "y", "z", "-x", "-y", "-z"],
                    help="up axis of the calibration's world; auto: the world axis nearest the "
                         "cameras' mean image-up direction")
+    p.add_argument("--floor", default="auto", metavar="H",
+                   help="height of the floor: its coordinate along the up direction, in metres "
+                        "from the calibration's origin, 'none' if unknown; auto: the origin "
+                        "plane when every camera is at least 0.5 m above it (Pose2Sim, "
+                        "Qualisys and anipose calibrate on the floor). The masks use it to find "
+                        "a standing leg that never moves")
     p.add_argument("--timestamps", default=None, metavar="CSV",
                    help="caliscope timestamps.csv for synchronisation (default: the one beside "
                         "the calibration, if any; 'none' to ignore it)")
@@ -64,6 +71,17 @@ def run(args):
     calibration = Path(args.calibration)
     if not calibration.is_file():
         raise ValueError(f"{calibration}: no such file")
+    floor = args.floor
+    if floor.lower() == "none":
+        floor = None
+    elif floor != "auto":
+        try:
+            floor = float(floor)
+        except ValueError:
+            raise UsageError(f"--floor must be a number, 'auto' or 'none', got {floor!r}") \
+                from None
+        if not math.isfinite(floor):
+            raise UsageError(f"--floor must be finite, got {args.floor}")
     timestamps = args.timestamps
     if timestamps is not None:
         if timestamps.lower() == "none":
@@ -80,14 +98,15 @@ def run(args):
         r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
                    up=args.up, timestamps=timestamps, overwrite=args.overwrite,
                    progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
-                   masks=args.masks)
+                   masks=args.masks, floor=floor)
     dt = time.perf_counter() - t0
     sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
     up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"
                     if r["up_angle_deg"] is not None else "")
     print(f"wrote {r['path']} ({r['frames']} frames at {r['fps']:g} fps, {len(r['cameras'])} "
           f"cameras: {sizes}; scale {r['scale']:.4g}; calibration {r['calibration_format']}; "
-          f"up {up}; sync {r['sync']}; {r['bytes'] / 1e6:.1f} MB in {dt:.1f} s)")
+          f"up {up}; floor {'unknown' if r['floor'] is None else format(r['floor'], 'g')}; "
+          f"sync {r['sync']}; {r['bytes'] / 1e6:.1f} MB in {dt:.1f} s)")
     m = r["masks"]
     if m is not None:
         fr = ", ".join(f"{n} {f:.3f}" for n, f in zip(r["cameras"], m["foreground_fraction"]))

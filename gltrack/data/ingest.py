@@ -70,7 +70,8 @@ import numpy as np
 from gltrack.camera import Camera
 from gltrack.data.calibration import detect_format, load_any_calibration
 from gltrack.data.dataset import DatasetWriter
-from gltrack.data.world import AXES, detect_up, internal_from_user, to_internal, world_meta
+from gltrack.data.world import (AXES, detect_floor, detect_up, internal_from_user, to_internal,
+                                world_meta)
 
 log = logging.getLogger(__name__)
 
@@ -437,7 +438,7 @@ def _folder_name(name, i, used):
 # --------------------------------------------------------------------------------------------
 def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="auto",
            timestamps=None, overwrite=False, progress=True, max_gb=DEFAULT_MAX_GB,
-           masks="auto"):
+           masks="auto", floor="auto"):
     """Make a multi-view gltrack dataset from calibrated videos (see the module docstring).
 
     Parameters
@@ -467,13 +468,18 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
     masks : {"auto", "none"}
         ``"auto"``: estimate foreground masks from the sequence and write them (module
         docstring, step 9); ``"none"``: frames only.
+    floor : float, "auto" or None
+        Height of the floor along the up axis (the calibration's units and origin); ``"auto"``:
+        the origin plane when every camera is above it (:func:`~gltrack.data.world.detect_floor`);
+        None: unknown. Recorded in ``meta.json`` (``world.floor``); the masks' support cue
+        needs it.
 
     Returns
     -------
     dict
         Summary: ``path``, ``frames``, ``fps``, ``cameras`` (names), ``sizes`` ([w, h] each),
-        ``scale``, ``up``, ``up_angle_deg`` (auto only), ``sync``, ``bytes`` written,
-        ``masks`` (``meta.json``'s ``"masks"``, or None).
+        ``scale``, ``up``, ``up_angle_deg`` (auto only), ``floor`` (or None), ``sync``,
+        ``bytes`` written, ``masks`` (``meta.json``'s ``"masks"``, or None).
 
     Raises
     ------
@@ -520,6 +526,14 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
     named = [Camera(_folder_name(c.name, i, used), "colour", c.width, c.height, c.K, c.dist, c.R,
                     c.t) for i, c in enumerate(scaled)]
     internal = to_internal(named, R_user_from_internal)
+    if isinstance(floor, str):
+        if floor != "auto":
+            raise ValueError(f"floor must be a number, 'auto' or None, got {floor!r}")
+        floor = detect_floor(internal)
+    elif floor is not None:
+        floor = float(floor)
+        if not np.isfinite(floor):
+            raise ValueError(f"floor must be finite, got {floor}")
 
     # estimate the disk use from the first frame of the first camera, before writing anything
     cap = cv2.VideoCapture(str(infos[0].path))
@@ -538,7 +552,7 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
              estimate / 1e6, out)
 
     meta = {
-        "world": world_meta(up),
+        "world": world_meta(up, floor),
         "source": {
             "tool": "gltrack ingest",
             "calibration": str(calibration.resolve()),
@@ -564,16 +578,16 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         bar.close()
         mask_meta = None
         if masks == "auto":
-            mask_meta = write_masks(writer, len(fmap))
+            mask_meta = write_masks(writer, len(fmap), floor=floor)
             writer.extra_meta["masks"] = mask_meta
     written = sum(p.stat().st_size for p in out.rglob("*.png"))
     return {"path": out, "frames": len(fmap), "fps": out_fps,
             "cameras": [c.name for c in internal], "sizes": [list(s) for s in sizes],
-            "scale": scale, "up": up, "up_angle_deg": up_angle, "sync": sync,
+            "scale": scale, "up": up, "up_angle_deg": up_angle, "floor": floor, "sync": sync,
             "calibration_format": fmt, "bytes": written, "masks": mask_meta}
 
 
-def write_masks(writer, frames, params=None):
+def write_masks(writer, frames, params=None, floor=None):
     """Estimate the foreground of the frames a :class:`DatasetWriter` holds and write them.
 
     The colour frames already written (in the writer's temporary folder) are read back one at a
@@ -587,6 +601,9 @@ def write_masks(writer, frames, params=None):
     writer : DatasetWriter, open, with colour frames ``0 .. frames-1`` for every camera
     frames : int
     params : gltrack.observe.foreground.ForegroundParams, optional
+    floor : float, optional
+        The floor's height along the writer's cameras' +Y (internal frame); without it the
+        ``"support"`` cue is off.
 
     Returns
     -------
@@ -600,6 +617,7 @@ def write_masks(writer, frames, params=None):
 
     params = params or ForegroundParams()
     cams = writer.cameras
+    cues = [c for c in CUES if c != "support" or floor is not None]
 
     def feed(cam):
         for j in range(frames):
@@ -611,9 +629,10 @@ def write_masks(writer, frames, params=None):
 
     log.info("foreground: estimating masks of %d frames x %d cameras (work size %d px, %d "
              "passes, cues %s)", frames, len(cams), params.work_size, params.passes,
-             ", ".join(CUES))
+             ", ".join(cues))
     t0 = time.perf_counter()
-    res = estimate_foreground([feed(c) for c in cams], cams, params=params)
+    res = estimate_foreground([feed(c) for c in cams], cams, params=params, cues=cues,
+                              floor=None if floor is None else ((0.0, 1.0, 0.0), floor))
     for k, cam in enumerate(cams):
         for j in range(frames):
             m = res.masks[k][j]
@@ -625,7 +644,7 @@ def write_masks(writer, frames, params=None):
     frac = [round(float(f), 4) for f in res.foreground_fraction()]
     log.info("foreground: masks written in %.0f s; foreground fraction per camera %s", seconds,
              ", ".join(f"{c.name} {f:.3f}" for c, f in zip(cams, frac)))
-    return {"method": "sequence-foreground", "cues": list(CUES), "passes": int(params.passes),
+    return {"method": "sequence-foreground", "cues": cues, "passes": int(params.passes),
             "work_size": int(params.work_size), "seconds": round(seconds, 1),
             "foreground_fraction": frac}
 

@@ -98,9 +98,43 @@ def to_internal(cameras, R_user_from_internal) -> list[Camera]:
     return [Camera(c.name, c.kind, c.width, c.height, c.K, c.dist, c.R @ M, c.t) for c in cameras]
 
 
-def world_meta(up: str) -> dict:
-    """The ``meta.json`` ``"world"`` record for a user frame with the given up axis."""
-    return {"up": up.lstrip("+"), "R_user_from_internal": internal_from_user(up).T.tolist()}
+def world_meta(up: str, floor: float | None = None) -> dict:
+    """The ``meta.json`` ``"world"`` record for a user frame with the given up axis.
+
+    ``floor`` (metres along the up axis, the same in the user's frame and the internal one:
+    the rotation is about the origin) is recorded when known, ``null`` otherwise.
+    """
+    return {"up": up.lstrip("+"), "R_user_from_internal": internal_from_user(up).T.tolist(),
+            "floor": None if floor is None else float(floor)}
+
+
+#: Every camera at least this far (metres) above the calibration's origin plane makes that
+#: plane the floor (:func:`detect_floor`).
+FLOOR_CAMERA_MIN = 0.5
+
+
+def detect_floor(cameras) -> float | None:
+    """The floor's height (internal +Y, metres) when the calibration's origin plane is the floor.
+
+    Pose2Sim, Qualisys and anipose rigs are calibrated with the board (or wand frame) on the
+    floor, so the floor is the origin plane (z = 0 of a Z-up world) and every camera is above
+    it by the height it is mounted at. A caliscope rig puts the origin wherever the board lay
+    (a desk), with cameras around and below it: then the floor is unknown. The rule: the origin
+    plane is the floor when every camera is at least :data:`FLOOR_CAMERA_MIN` above it (lower
+    mounts would film the floor at a grazing angle); otherwise None.
+
+    Parameters
+    ----------
+    cameras : list of Camera in the internal (+Y up) frame
+    """
+    heights = np.array([float(c.center[1]) for c in cameras])
+    if heights.min() >= FLOOR_CAMERA_MIN:
+        log.info("floor: the calibration's origin plane (cameras %.2f-%.2f m above it)",
+                 heights.min(), heights.max())
+        return 0.0
+    log.info("floor: unknown (a camera is %.2f m from the calibration's origin plane, under "
+             "%.1f m); give --floor to use the support cue", heights.min(), FLOOR_CAMERA_MIN)
+    return None
 
 
 def check_world(obj, where) -> np.ndarray:
@@ -121,6 +155,11 @@ def check_world(obj, where) -> np.ndarray:
     up = obj.get("up")
     if up is not None and up not in AXES:
         raise ValueError(f"{where}: field 'world.up' must be one of {AXES}, got {up!r}")
+    floor = obj.get("floor")
+    if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float))
+                              or not np.isfinite(floor)):
+        raise ValueError(f"{where}: field 'world.floor' must be a finite number or null, got "
+                         f"{floor!r}")
     return R
 
 

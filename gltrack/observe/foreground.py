@@ -44,6 +44,17 @@ on their own (``cues=``):
    few frames only. Measured on the Pose2Sim take (body estimate from ``ingest``'s masks): a
    2.28 m body without this cue, 1.96 m with it.
 
+6. **support** (the subject's support, with the floor given as ``floor=``): a leg that stands
+   still for the whole take is in the temporal background, so the cues above miss it, and
+   GrabCut's colour model of the whole crop holds the room too (on the Pose2Sim take,
+   skin-coloured walls: the bare standing leg stays background). In static balance the centre
+   of mass is above the support, so :func:`support_column` gives a column from the floor to
+   the hull's centroid; per camera a column pixel is the subject's when its colour is
+   ``support_odds`` times likelier under the subject's colours (the hull-consistent candidates
+   of every frame) than under those of a ring of scene around the column
+   (:meth:`SequenceForeground.support_colours`); a pixel is kept where the visual hull of the
+   frame's masks inside the column's box (:meth:`SequenceForeground.consistent`) reprojects.
+
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
 masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
 pass the projected silhouettes of its model as ``person_masks`` for the same effect.
@@ -88,7 +99,7 @@ from .voxels import carve, centre_pixels, pixel_boxes
 
 log = logging.getLogger(__name__)
 
-CUES = ("hull", "grabcut", "shadows", "ghosts")
+CUES = ("hull", "grabcut", "shadows", "ghosts", "support")
 #: first quartile of |x| for x ~ N(0, 1)
 _Q25 = 0.31864
 
@@ -226,6 +237,90 @@ def shared_volume(cameras, min_views: int | None = None, *, samples: int = 40) -
     return np.concatenate([keep.min(axis=0) - step, keep.max(axis=0) + step])
 
 
+def colour_density(colours, bins: int) -> np.ndarray:
+    """Smoothed colour histogram: (bins, bins, bins) float that sums to 1.
+
+    ``colours`` (N, 3) uint8 are quantised to ``bins`` levels per channel, the counts blurred by
+    a Gaussian of one bin (a kernel density estimate: a few thousand samples leave most of the
+    bins of a raw histogram empty, and an empty bin would make any colour "unlike" the scene)
+    plus 1e-3 of a count per bin, so no colour has zero density.
+    """
+    B = int(bins)
+    q = (np.asarray(colours, np.int32).reshape(-1, 3) * B) >> 8
+    hist = np.zeros((B, B, B))
+    np.add.at(hist, (q[:, 0], q[:, 1], q[:, 2]), 1.0)
+    hist = ndimage.gaussian_filter(hist, 1.0, mode="constant") + 1e-3
+    return hist / hist.sum()
+
+
+def check_floor(floor):
+    """``(normal, height)`` validated: a finite (3,) float unit normal and a float."""
+    try:
+        n, h = floor
+        n = np.asarray(n, float).reshape(3)
+        h = float(h)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"floor must be (normal (3,), height), got {floor!r}") from e
+    norm = float(np.linalg.norm(n))
+    if not (np.isfinite(n).all() and np.isfinite(h) and norm > 0):
+        raise ValueError(f"floor must have a finite, non-zero normal and a finite height, "
+                         f"got {floor!r}")
+    return n / norm, h
+
+
+def support_column(lo, size, floor, *, reach: float, step: float):
+    """Where a subject's support is: a vertical column from the floor up to the hull's centroid.
+
+    A standing person's support reaches down to the floor, and in static balance the centre of
+    mass is above it: the legs lie in a column under the hull's centroid. A leg that stood
+    still for the whole take stays in the temporal background and is missing from the hull
+    (the Pose2Sim take: the standing leg, in every view); the column says where to look for it.
+    Whether the hull reaches the floor says nothing (the other foot may touch it), so the
+    column is given for every frame.
+
+    Parameters
+    ----------
+    lo : (M, 3) float, world corner of each hull voxel (the cameras' world units)
+    size : (M,) float, edge of each voxel
+    floor : tuple (normal, height): ``normal`` (3,) float, the world's unit up direction;
+        floor points ``x`` satisfy ``normal @ x == height``
+    reach : float, half the column's width (horizontal distance from the centroid's foot)
+    step : float, the largest edge of the boxes the column is made of
+
+    Returns
+    -------
+    (lo, size) : (N, 3) float and (N,) float, the column as axis-aligned boxes from the floor
+        to the centroid's height; None when the hull is empty or its centroid is not above
+        the floor
+    """
+    lo = np.asarray(lo, float).reshape(-1, 3)
+    size = np.asarray(size, float).reshape(-1)
+    if len(lo) == 0:
+        return None
+    n = np.asarray(floor[0], float)
+    n = n / np.linalg.norm(n)
+    centres = lo + 0.5 * size[:, None]
+    w = size ** 3
+    centroid = centres.T @ w / w.sum()
+    top = float(centroid @ n - float(floor[1]))
+    if top <= 0:
+        return None
+    foot = centroid - top * n
+    # two horizontal directions
+    u = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    k = max(int(np.ceil(reach / step)), 1)
+    off = (np.arange(-k, k) + 0.5) * (reach / k)
+    m = max(int(np.ceil(top / step)), 1)
+    up = (np.arange(m) + 0.5) * (top / m)
+    A, B, Z = np.meshgrid(off, off, up, indexing="ij")
+    pts = foot + A.reshape(-1, 1) * u + B.reshape(-1, 1) * v + Z.reshape(-1, 1) * n
+    # cubes as wide as the larger spacing cover the column
+    edge = float(max(reach / k, top / m))
+    return pts - 0.5 * edge, np.full(len(pts), edge)
+
+
 def _robust_affine(x, y, keep=None, rounds: int = 3):
     """``(a, b)`` with ``y ~ a x + b`` fitted by least squares, refitted on the inliers
     (residual within 3 robust standard deviations) ``rounds`` times; ``(1, 0)`` if degenerate."""
@@ -356,6 +451,21 @@ class ForegroundParams:
     ghost_gap : float
         Background frames within this fraction of the take of the tested frame do not count
         for the ghost test (a part moving slowly looks the same in the next few frames).
+    support_reach : float, metres
+        Half the width of the support column (cue ``"support"``, :func:`support_column`) under
+        the hull's centroid: in static balance the centre of mass is above the support, and a
+        wide stance puts the feet up to ~0.3 m from it.
+    support_bins : int
+        Colour levels per YUV channel of the support cue's colour densities (16: 4096 bins,
+        finer than skin, clothes and floor differ, coarse enough for a few thousand samples).
+    support_odds : float
+        A column pixel is the subject's when its colour is this many times likelier under the
+        subject's colours than under the scene's around the column: the prior odds of the
+        scene, as two legs (~0.25 m) fill about a third of the 0.8 m column.
+    support_limb : float, metres
+        The support cue's result is opened with a disk of this diameter (projected at the
+        subject's depth): narrower than an ankle (6-7 cm), wider than a rail or a seam in the
+        floor.
     """
 
     work_size: int = 480
@@ -377,6 +487,10 @@ class ForegroundParams:
     shadow_high: float = 0.95
     shadow_chroma: float = 8.0
     exclude_margin: int = 5
+    support_reach: float = 0.4
+    support_bins: int = 16
+    support_odds: float = 2.0
+    support_limb: float = 0.05
     passes: int = 2
     ghost_recurrence: float = 0.25
     ghost_gap: float = 0.05
@@ -416,7 +530,9 @@ class ForegroundResult:
     stages : dict, name -> list (C) of (T, h, w) bool masks of the last pass after each cue:
         ``"candidate"`` (temporal background, with shadows removed when that cue is on),
         ``"hull"`` (multi-view consistent candidate), ``"grabcut"`` (refined, before the final
-        shadow veto), ``"hull_silhouette"`` (reprojection of the hull's main component)
+        shadow veto), ``"hull_silhouette"`` (reprojection of the hull's main component), and
+        with the support cue ``"support_column"`` (the column's reprojection) and ``"support"``
+        (the pixels it added or confirmed)
     full_size : list (C) of (W, H), pixels, size of the input images
     """
 
@@ -457,11 +573,14 @@ class SequenceForeground:
     rng : numpy.random.Generator, optional; picks the background frames when there are more
         than ``params.max_background_frames`` and seeds GrabCut (default: evenly spaced frames,
         seed 0)
+    floor : (normal (3,), height), optional; the floor plane ``normal @ x == height`` in the
+        cameras' world, ``normal`` pointing up (cue ``"support"``; without it that cue is off)
     """
 
     def __init__(self, frames_by_camera, cameras, params: ForegroundParams | None = None,
-                 rng=None):
+                 rng=None, floor=None):
         self.params = params or ForegroundParams()
+        self.floor = None if floor is None else check_floor(floor)
         cameras = list(cameras)
         feeds = list(frames_by_camera)
         if len(feeds) != len(cameras):
@@ -712,19 +831,21 @@ class SequenceForeground:
         -------
         silhouettes : list (C) of (h, w) bool, reprojection of the hull's largest component
         depth : (C,) float, depth of that component's centroid in each camera (nan if empty)
+        voxels : (lo (M, 3), size (M,)) of the kept component (empty arrays if none)
         """
         p = self.params
         C = len(self.cameras)
         empty = [np.zeros((c.height, c.width), bool) for c in self.cameras]
+        none = (np.zeros((0, 3)), np.zeros(0))
         if sum(bool(m.any()) for m in masks_t) < C - self.tolerance:
-            return empty, np.full(C, np.nan)
+            return empty, np.full(C, np.nan), none
         # voxels far outside a camera's view can overflow its distortion polynomial; they are
         # classified "background" there either way (the box falls off the image)
         with np.errstate(invalid="ignore", over="ignore"):
             vox = carve(self.cameras, masks_t, self.bounds, base=16, max_depth=p.hull_levels,
                         tolerance=self.tolerance)
         if len(vox) == 0:
-            return empty, np.full(C, np.nan)
+            return empty, np.full(C, np.nan), none
         L = int(p.hull_levels)
         fine = vox.at_level(L)
         shape = fine.max(axis=0) + 1
@@ -741,7 +862,7 @@ class SequenceForeground:
                 votes[ok] += m[px[ok, 1], px[ok, 0]]
             grid[tuple(cells[votes < 2].T)] = False
             if not grid.any():
-                return empty, np.full(C, np.nan)
+                return empty, np.full(C, np.nan), none
         labels, n = ndimage.label(grid, structure=np.ones((3, 3, 3)))
         sizes = np.bincount(labels.ravel())
         sizes[0] = 0
@@ -772,7 +893,38 @@ class SequenceForeground:
                 front, lo_px, hi_px = pixel_boxes(cam, lo, size, True)
             sil.append(fill_boxes((cam.height, cam.width), lo_px[front], hi_px[front]))
             depth[self.cameras.index(cam)] = float(cam.depth_of(centroid[None])[0])
-        return sil, depth
+        return sil, depth, (lo, size)
+
+    def consistent(self, masks_t, bounds):
+        """Reprojection of the visual hull of one frame's masks inside ``bounds``.
+
+        Parameters
+        ----------
+        masks_t : list (C) of (h, w) bool
+        bounds : (6,) float, the box to carve
+
+        Returns
+        -------
+        list (C) of (h, w) bool, the hull's reprojection dilated by ``hull_margin`` (all False
+        where no voxel is kept)
+        """
+        p = self.params
+        # 4 coarse voxels along the box's longest side, refined ``hull_levels`` times: for the
+        # support column (about 0.8 x 0.8 x 1 m) a 5-6 cm voxel, finer than a shin is thick
+        with np.errstate(invalid="ignore", over="ignore"):
+            vox = carve(self.cameras, masks_t, bounds, base=4, max_depth=p.hull_levels,
+                        tolerance=self.tolerance)
+        out = []
+        for cam, m in zip(self.cameras, masks_t):
+            if len(vox) == 0:
+                out.append(np.zeros_like(m))
+                continue
+            with np.errstate(invalid="ignore", over="ignore"):
+                front, lo_px, hi_px = pixel_boxes(cam, vox.origin + vox.ijk * vox.size[:, None],
+                                                  vox.size, True)
+            out.append(dilate_mask(fill_boxes(m.shape, lo_px[front], hi_px[front]),
+                                   p.hull_margin))
+        return out
 
     # ------------------------------------------------------------------------ cue 3: GrabCut
     def grabcut(self, c, t, seed_sure, seed_probable, band_px, region=None):
@@ -785,7 +937,6 @@ class SequenceForeground:
         band_px : int, width of the probable-background band, pixels
         region : (h, w) bool, optional, more "probably background" (the band goes around it)
         """
-        img = self.images[c][t]
         fgish = seed_sure | seed_probable
         if not fgish.any():
             return None
@@ -800,12 +951,69 @@ class SequenceForeground:
         gc[band[r0:r1, c0:c1]] = cv2.GC_PR_BGD
         gc[seed_probable[r0:r1, c0:c1]] = cv2.GC_PR_FGD
         gc[seed_sure[r0:r1, c0:c1]] = cv2.GC_FGD
+        fg = self._grabcut_crop(c, t, gc, r0, c0)
+        if fg is None:
+            return None
+        out = np.zeros((h, w), bool)
+        out[r0:r1, c0:c1] = fg
+        out |= seed_sure
+        return out
+
+    def person_colours(self, c, masks):
+        """Colour density of the subject in camera c: (B, B, B) float, sums to 1.
+
+        ``masks`` (T, h, w) bool are pixels known to be the subject (the hull-consistent
+        candidates of every frame); the frames are the blurred YUV ones, quantised to
+        ``support_bins`` levels per channel (:func:`colour_density`).
+        """
+        B = int(self.params.support_bins)
+        yuv = self._yuv(c)
+        samples = [yuv[t][masks[t]] for t in range(self.T) if masks[t].any()]
+        return colour_density(np.concatenate(samples) if samples else np.zeros((0, 3), np.uint8),
+                              B)
+
+    def support_colours(self, c, t, body, column, person, limb_px: int = 1):
+        """Pixels of the support column of camera c, frame t whose colour is the subject's.
+
+        The scene's colours are learnt from a ring around the column (a quarter of its size
+        wide, outside ``body``), where what lies around the support is (floor, mats); a column
+        pixel is the subject when its colour is ``support_odds`` times likelier under ``person``
+        (:meth:`person_colours`) than under the ring's density. A colour model of the whole
+        crop (GrabCut's) holds the room's walls too, which on the Pose2Sim take are the colour
+        of skin: a bare standing leg stayed background. The result is opened with a disk of
+        ``limb_px`` radius: a strip thinner than a limb (a rail in the floor) goes.
+
+        Returns
+        -------
+        (h, w) bool, inside ``column``; None when the ring is empty
+        """
+        p = self.params
+        rows = np.flatnonzero(column.any(axis=1))
+        cols = np.flatnonzero(column.any(axis=0))
+        m = max(4, (max(rows[-1] - rows[0], cols[-1] - cols[0]) + 1) // 4)
+        ring = dilate_mask(column, m) & ~column & ~body
+        if not ring.any():
+            return None
+        yuv = self._yuv(c)[t]
+        scene = colour_density(yuv[ring], int(p.support_bins))
+        q = (yuv[column].astype(np.int32) * int(p.support_bins)) >> 8
+        i = (q[:, 0], q[:, 1], q[:, 2])
+        out = np.zeros_like(column)
+        out[column] = person[i] > p.support_odds * scene[i]
+        if limb_px > 1:
+            out = dilate_mask(erode_mask(out, limb_px), limb_px) & out
+        return clean_mask(out, p.morph_size, 1)
+
+    def _grabcut_crop(self, c, t, gc, r0, c0):
+        """cv2.grabCut on the crop of camera c, frame t at (r0, c0) with initial labels ``gc``
+        (downscaled to ``grabcut_max_pixels``): (rows, cols) bool foreground, or None when a
+        label set is too small or the colour models degenerate."""
         bgish = (gc == cv2.GC_BGD) | (gc == cv2.GC_PR_BGD)
         if bgish.sum() < 16 or (~bgish).sum() < 16:
             return None
         bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
-        crop = np.ascontiguousarray(img[r0:r1, c0:c1])
         full = gc.shape
+        crop = np.ascontiguousarray(self.images[c][t][r0:r0 + full[0], c0:c0 + full[1]])
         area = full[0] * full[1]
         cap = int(self.params.grabcut_max_pixels)
         if cap > 0 and area > cap:  # bound the cost: GrabCut is linear in pixels
@@ -822,10 +1030,7 @@ class SequenceForeground:
         fg = ((gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)).astype(np.uint8)
         if fg.shape != full:
             fg = cv2.resize(fg, (full[1], full[0]), interpolation=cv2.INTER_NEAREST)
-        out = np.zeros((h, w), bool)
-        out[r0:r1, c0:c1] = fg.astype(bool)
-        out |= seed_sure
-        return out
+        return fg.astype(bool)
 
     # ------------------------------------------------------------------------ one pass
     def run_pass(self, exclude=None, cues=CUES, known_person=None):
@@ -876,11 +1081,26 @@ class SequenceForeground:
             return [m.copy() for m in cand], stages, bgs, knowns
         hullm = [np.zeros_like(m) for m in cand]
         sils = [np.zeros_like(m) for m in cand]
+        columns = [np.zeros_like(m) for m in cand]
+        column_boxes = {}
         depths = np.full((T, C), np.nan)
         for t in range(T):
             if "hull" in cues:
                 strong = [cand[c][t] for c in range(C)] if "shadows" in cues else None
-                sil, depths[t] = self.hull([raw[c][t] for c in range(C)], strong)
+                sil, depths[t], (lo, size) = self.hull([raw[c][t] for c in range(C)], strong)
+                col = None
+                if "support" in cues and self.floor is not None:
+                    col = support_column(lo, size, self.floor, reach=p.support_reach,
+                                         step=p.support_reach / 4)
+                if col is not None:
+                    column_boxes[t] = np.concatenate([col[0].min(axis=0),
+                                                      (col[0] + col[1][:, None]).max(axis=0)])
+                    for c in range(C):
+                        with np.errstate(invalid="ignore", over="ignore"):
+                            front, lo_px, hi_px = pixel_boxes(self.cameras[c], col[0], col[1],
+                                                              True)
+                        columns[c][t] = fill_boxes(sils[c][t].shape, lo_px[front],
+                                                   hi_px[front])
                 for c in range(C):
                     sils[c][t] = sil[c]
                     # the hull is carved from shadow-free candidates; a pixel the shadow test
@@ -891,13 +1111,17 @@ class SequenceForeground:
                 for c in range(C):
                     hullm[c][t] = cand[c][t]
         stages["hull"], stages["hull_silhouette"] = hullm, sils
+        if column_boxes:
+            stages["support_column"] = columns
         if "grabcut" not in cues:
             return [m.copy() for m in hullm], stages, bgs, knowns
         cv2.setRNGSeed(self._seed)
         out = [np.zeros_like(m) for m in cand]
+        support = [np.zeros_like(m) for m in cand]
         for c in range(C):
             cam = self.cameras[c]
             f = 0.5 * (cam.fx + cam.fy)
+            person = None
             for t in range(T):
                 sure = erode_mask(hullm[c][t], 1)
                 seed = sils[c][t] | hullm[c][t]
@@ -914,7 +1138,26 @@ class SequenceForeground:
                     band = int(round(p.body_margin * f / d))
                 g = self.grabcut(c, t, sure, prob, max(band, 2), region)
                 out[c][t] = hullm[c][t] if g is None else g
+                if columns[c][t].any():
+                    # the body's support, by colour (cue "support")
+                    if person is None:
+                        person = self.person_colours(c, hullm[c])
+                    limb = (1 if not np.isfinite(d) or d <= 0
+                            else int(round(0.5 * p.support_limb * f / d)))
+                    s = self.support_colours(c, t, out[c][t], columns[c][t], person, limb)
+                    if s is not None:
+                        support[c][t] = s
         stages["grabcut"] = [m.copy() for m in out]
+        kept = [np.zeros_like(m) for m in cand]
+        for t, box in column_boxes.items():
+            # a support pixel must be multi-view consistent: carved with the other views'
+            # masks in the column's box (floor and mats a camera's colours took go)
+            keep = self.consistent([out[c][t] | support[c][t] for c in range(C)], box)
+            for c in range(C):
+                kept[c][t] = keep[c]
+                out[c][t] |= support[c][t] & keep[c]
+        if column_boxes:
+            stages["support"] = [s & k for s, k in zip(support, kept)]
         if "shadows" in cues:
             for c in range(C):
                 out[c] &= ~(shadow[c] & ~sils[c])
@@ -958,7 +1201,7 @@ class SequenceForeground:
 
 def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=None,
                         cues=CUES, params: ForegroundParams | None = None,
-                        passes: int | None = None) -> ForegroundResult:
+                        passes: int | None = None, floor=None) -> ForegroundResult:
     """Foreground masks of a synchronised multi-camera sequence without empty-scene frames.
 
     Parameters
@@ -976,15 +1219,19 @@ def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=Non
         Picks the background frames and seeds GrabCut; without it the frames are evenly spaced
         and the seed is 0 (deterministic either way).
     cues : iterable of str
-        Cues to use, a subset of :data:`CUES` (``"hull", "grabcut", "shadows", "ghosts"``); the
-        temporal background is
-        always used. Leave cues out to measure what each contributes.
+        Cues to use, a subset of :data:`CUES` (``"hull", "grabcut", "shadows", "ghosts",
+        "support"``); the temporal background is always used, ``"support"`` needs ``floor``
+        and ``"hull"`` and ``"grabcut"`` (it runs beside GrabCut). Leave cues out to measure
+        what each contributes.
     params : ForegroundParams, optional
     passes : int, optional, overrides ``params.passes``
+    floor : (normal (3,), height), optional
+        The floor plane ``normal @ x == height`` (``normal`` a unit up vector in the cameras'
+        world); the ``"support"`` cue needs it and is off without it.
 
     Returns
     -------
     ForegroundResult, masks at the working resolution (``result.mask_at`` resizes them)
     """
-    est = SequenceForeground(frames_by_camera, cameras, params, rng)
+    est = SequenceForeground(frames_by_camera, cameras, params, rng, floor)
     return est.run(person_masks, cues, passes)
