@@ -193,6 +193,42 @@ def test_masks_that_spill_sideways_do_not_sink_the_estimate_through_the_floor(tm
     assert upper.floor is None
 
 
+def test_a_recorded_floor_holds_the_soles_where_masks_spill_below_the_feet(tmp_path, ctx,
+                                                                            monkeypatch):
+    """Masks that spill 4 pixels below the body (a shadow or reflection round the feet, 128 x 96
+    images) carve hulls that reach below the floor, so the floor the estimate infers from them
+    lies too low and the body grows into the spill. A dataset that records the floor
+    (``world.floor``, ``gltrack ingest --floor``) holds the soles above it instead."""
+    import json
+
+    from gltrack.data.world import world_meta
+
+    monkeypatch.setenv("GLTRACK_ENGINE_WORKERS", "0")  # one route for both (see above)
+    true = _body(1.62)
+    ds = _multiview(tmp_path / "mv", true)
+    down = np.zeros((9, 1), np.uint8)
+    down[:5] = 1  # a vertical kernel anchored at its centre: grows the mask 4 pixels downwards
+    for f in sorted((tmp_path / "mv").glob("cam*_mask/*.png")):
+        cv2.imwrite(str(f), cv2.dilate(cv2.imread(str(f), 0), down))
+
+    def estimate(dataset):
+        return estimate_body(dataset, ctx, frames=[0], rounds=1, tile=128,
+                             rng=np.random.default_rng(0))
+
+    inferred = estimate(ds)
+    meta_path = tmp_path / "mv" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["world"] = world_meta("y", 0.0)  # identity rotation, the floor at y = 0
+    meta_path.write_text(json.dumps(meta))
+    recorded = estimate(Dataset.open(tmp_path / "mv"))
+    assert inferred.floor < -0.03, inferred.floor  # the spill's bottom
+    assert recorded.floor == 0.0
+    sole = lowest_sole(recorded.body.kin, recorded.poses).min()
+    assert sole > -body_estimate.FLOOR_TOLERANCE - 0.005, sole
+    err = [abs(body_error(e.skeleton, true.skeleton)["height_mm"]) for e in (recorded, inferred)]
+    assert err[0] < 0.5 * err[1], err  # 31 against 151 mm when written
+
+
 def test_depth_estimate_finds_a_short_stout_subject(tmp_path, ctx):
     true = _body(1.62)
     ds = _depth(tmp_path / "d", true)

@@ -519,6 +519,16 @@ class Dataset:
 
         return check_world(world, self.path / META)
 
+    def floor_height(self):
+        """Height of the floor along internal +Y (metres), or None when unknown.
+
+        ``meta.json``'s ``world.floor`` (``gltrack ingest --floor``; the rotation to the user's
+        frame is about the origin, so it is also the floor's coordinate along the user's up
+        axis). None for a dataset without that record (every synthetic one).
+        """
+        f = (self.meta.get("world") or {}).get("floor")
+        return None if f is None else float(f)
+
     def up_axis(self):
         """The user frame's up axis (``"y"``, ``"z"``, ``"-y"``, ...); ``"y"`` without a record."""
         return (self.meta.get("world") or {}).get("up", "y")

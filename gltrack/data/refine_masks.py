@@ -143,7 +143,7 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
             yield ds.colour(f, k)
 
     # the support cue as ingest ran it: with the floor the dataset records (internal +Y)
-    floor = (ds.meta.get("world") or {}).get("floor")
+    floor = ds.floor_height()
     res = estimate_foreground([feed(k) for k in cams], [ds.cameras[k] for k in cams],
                               person_masks=person, params=params,
                               floor=None if floor is None else ((0.0, 1.0, 0.0), float(floor)))

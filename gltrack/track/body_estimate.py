@@ -27,7 +27,8 @@ How (both rigs, the same search; only the per-frame cost differs):
    poses carried over to the candidate body (same angles, feet kept on their spot) and
    hill-climbed once, the cost summed over the frames (multi-view: silhouette XOR pixels over
    all cameras, plus :data:`FLOOR_PENALTY` for a sole more than :data:`FLOOR_TOLERANCE`
-   below the visual hulls' bottom; depth: the smoothstep depth cost). Judging a candidate at the current poses
+   below the floor: the dataset's recorded one, ``world.floor`` from ``gltrack ingest``, else
+   the visual hulls' bottom; depth: the smoothstep depth cost). Judging a candidate at the current poses
    instead never moves: those poses make up for the current body's errors. After every sweep
    the poses are hill-climbed again (:func:`gltrack.sample.hillclimb.hill_climb`).
 5. The result: the skeleton of the best proportions, the procedural mesh of it
@@ -305,12 +306,18 @@ class _SilhouetteFrames:
         self.template_body, self.tile = template_body, tile
         self.programs = ProgramCache(ctx)
         self.frames, self.engines = [], []
-        #: metres (world y): the lowest bottom of the visual hulls measured so far
-        self.floor = np.inf
+        #: the floor the dataset records (``gltrack ingest --floor``), or None
+        self.known_floor = dataset.floor_height()
+        #: metres (world y): the recorded floor, else the lowest bottom of the visual hulls
+        #: measured so far
+        self.floor = np.inf if self.known_floor is None else self.known_floor
 
     def measure(self, frame: int) -> tuple[float, np.ndarray]:
         """Height (metres, top to bottom plus one voxel) and centroid (3,) of the frame's
-        visual hull; NoPersonError without one. Lowers :attr:`floor` to the hull's bottom."""
+        visual hull; NoPersonError without one. Lowers :attr:`floor` to the hull's bottom
+        unless the dataset records the floor; then the height is measured from the floor when
+        the hull reaches below it (masks that spill onto the floor round the feet: 8 cm on the
+        Pose2Sim take)."""
         _, masks = self.obs(frame)
         volume = default_volume(self.obs.pinholes)
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=3, distort=False)
@@ -319,9 +326,13 @@ class _SilhouetteFrames:
                                 "the tracking volume: no person to estimate the body from")
         pts, vol = hull.points(max_size=0.05)
         size = float(np.cbrt(vol.min()))
-        self.floor = min(self.floor, float(pts[:, 1].min() - 0.5 * size))
+        bottom = float(pts[:, 1].min() - 0.5 * size)
+        if self.known_floor is None:
+            self.floor = min(self.floor, bottom)
+        else:
+            bottom = max(bottom, self.known_floor)
         centroid = (pts * vol[:, None]).sum(axis=0) / vol.sum()
-        return float(pts[:, 1].max() - pts[:, 1].min() + size), centroid
+        return float(pts[:, 1].max() + 0.5 * size - bottom), centroid
 
     def initial_pose(self, frame: int, body) -> np.ndarray:
         from .multiview import HpsOptions, HPSTracker
@@ -499,7 +510,8 @@ TEMPLATE_LOD = 0
 FIRST_STEPS = (0.08, 0.04, 0.02)
 
 #: Silhouette XOR pixels per metre that a sole reaches more than :data:`FLOOR_TOLERANCE` below
-#: the floor (the lowest bottom of the frames' visual hulls; multi-view only). Why: the
+#: the floor (the dataset's recorded one, else the lowest bottom of the frames' visual hulls;
+#: multi-view only). Why: the
 #: subject stands on something, and a hull holds the whole subject, so no sole lies below its
 #: bottom. Without this, masks that spill into the background beside the person (GrabCut on
 #: real footage) are covered best by a body too large for them that sinks through the floor:
