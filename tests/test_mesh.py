@@ -275,3 +275,15 @@ def test_closest_points_agree_with_trimesh():
 def test_markers_validate_shapes():
     with pytest.raises(ValueError):
         Markers(("a", "b"), np.array([0]), np.zeros((2, 3)))
+
+
+def test_nearest_faces_carry_face_data_between_levels_of_detail(skel, mesh):
+    np.testing.assert_array_equal(mesh.nearest_faces(mesh), np.arange(mesh.n_faces))
+    coarse = make_body_mesh(skel, lod=0)
+    idx = mesh.nearest_faces(coarse)
+    assert idx.shape == (coarse.n_faces,) and idx.min() >= 0 and idx.max() < mesh.n_faces
+    # every coarse face takes a face of its own body part, nearby on the surface
+    np.testing.assert_array_equal(mesh.part[mesh.faces[idx, 0]], coarse.part[coarse.faces[:, 0]])
+    gap = np.linalg.norm(mesh.vertices[mesh.faces[idx]].mean(axis=1)
+                         - coarse.vertices[coarse.faces].mean(axis=1), axis=1)
+    assert np.median(gap) < 0.03 and gap.max() < 0.1

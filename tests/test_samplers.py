@@ -323,6 +323,37 @@ def test_apf_layers_hit_survival_target_and_sharpen():
     assert betas[-1] > 1.3 * betas[0]  # the weight function sharpens as the set concentrates
 
 
+def test_apf_coarse_layers_weight_with_the_coarse_function_first():
+    x0, target, wfn = bump_problem(9)
+    calls = []
+
+    def fine(x):
+        calls.append("fine")
+        return wfn(x)
+
+    def coarse(x):  # a cheaper, slightly wrong approximation: the bump half a sigma off
+        calls.append("coarse")
+        return wfn(x - 0.5 * SPACE.sigma)
+
+    apf = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4, coarse_layers=4)
+    p = np.repeat(x0[None], 300, axis=0)
+    res = apf.step(p, fine, np.random.default_rng(1), coarse_fn=coarse)
+    assert calls == ["coarse"] * 4 + ["fine"] * 2
+    assert res.evaluations == 6 * 300
+    # the estimate is placed by the full function's last layers: near its bump, not the coarse one's
+    assert err(res.estimate, target) < err(res.estimate, target + 0.5 * SPACE.sigma)
+    # without a coarse function the coarse layers are ordinary ones: the run of coarse_layers=0
+    calls.clear()
+    a = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4, coarse_layers=4).step(
+        p, fine, np.random.default_rng(1))
+    b = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4).step(p, fine, np.random.default_rng(1))
+    assert calls == ["fine"] * 12
+    np.testing.assert_array_equal(a.estimate, b.estimate)
+    for bad in (6, 7, -1):  # the last layer always weights with the full function
+        with pytest.raises(ValueError, match="coarse_layers"):
+            AnnealedParticleFilter(SPACE, layers=6, coarse_layers=bad)
+
+
 def test_hps_diagnostics_and_min_spread():
     x0, _, wfn = bump_problem(10)
     smp = HierarchicalSampler.from_dofs(DOFS, 30, min_spread=10.0)  # stops after 1 torso layer

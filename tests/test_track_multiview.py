@@ -204,6 +204,50 @@ def test_mesh_lod_is_the_mesh_the_engine_scores(dataset, ctx):
     assert not np.allclose(e_s[0], e_s[1])
 
 
+def test_apf_early_layers_score_the_coarse_mesh(dataset, ctx, tmp_path):
+    from gltrack.data.dataset import Dataset
+    from gltrack.track.multiview import ApfOptions, APFTracker, coarse_layer_count
+
+    path, body, P = dataset
+    ds = Dataset.open(path)
+    assert coarse_layer_count("apf", ApfOptions()) == 8  # 10 layers, the last 2 fine
+    assert coarse_layer_count("apf", ApfOptions(layers=4, fine_layers=6)) == 0
+    assert coarse_layer_count("apf", ApfOptions(fine_layers=0)) == 0
+    assert coarse_layer_count("apf", ApfOptions(mesh_lod=0)) == 0  # already the coarsest
+    assert coarse_layer_count("ps", ApfOptions()) == 0
+    tr = APFTracker(ds, body, ctx, ApfOptions(particles=30, layers=4, fine_layers=1),
+                    np.random.default_rng(0))
+    try:
+        coarse = tr.likelihood.coarse_engine
+        assert coarse.mesh.n_faces == body.with_lod(0).mesh.n_faces < tr.engine.mesh.n_faces
+        tr.start(0, P[0])
+        fine0, coarse0 = tr.engine.evaluations, coarse.evaluations
+        tr.step(1)
+        assert coarse.evaluations - coarse0 == 3 * 30  # three layers of 30 on the coarse mesh
+        assert tr.engine.evaluations - fine0 >= 30     # the last layer on the fine one
+        # the coarse mesh sees this frame's masks and colours: it prefers the true pose, and
+        # counts about as many colour-consistent pixels there as the fine mesh
+        tr.observe(3)
+        rng = np.random.default_rng(5)
+        X = np.repeat(P[3][None], 8, axis=0)
+        X[1:] += rng.normal(0.0, 0.15, X[1:].shape) * (np.arange(8)[1:, None] / 4.0)
+        X = body.dofs.validate(X)
+        e_f, c_f = tr.likelihood.scores(X)
+        e_c, c_c = tr.likelihood.scores(X, coarse=True)
+        assert np.argmin(e_c) == 0 and np.argmax(tr.coarse_weights(X)) == 0
+        assert c_c[0] == pytest.approx(c_f[0], rel=0.15) and not np.array_equal(c_c, c_f)
+        assert not np.array_equal(e_c, e_f)
+    finally:
+        tr.close()
+    # only apf anneals on a coarse mesh
+    cfg = tmp_path / "c.toml"
+    for method, text in (("ps", "fine_layers = 2\n"), ("apf", "fine_layers = -1\n")):
+        cfg.write_text(text)
+        rc = main(["-q", "track", "--body", "dataset", str(path), "--method", method, "--out",
+                   str(tmp_path / "o"), "--config", str(cfg), "--overwrite"])
+        assert rc == 1, (method, text)
+
+
 def test_step_reports_per_camera_iou_of_the_estimate(dataset, ctx):
     """info["iou"], info["model_on_fg"], info["fg_covered"]: one value per camera, equal to the
     CPU rasteriser's counts against the foreground at the IoU tile (the tracking tile or a finer

@@ -70,6 +70,27 @@ class BodyMesh:
         return BodyMesh(self.vertices[used], remap[faces], self.joints[used], self.weights[used],
                         self.part[used])
 
+    def nearest_faces(self, other: "BodyMesh") -> np.ndarray:
+        """(F_other,) int64, for each face of ``other`` the face of this mesh whose rest-pose
+        centroid is nearest to its own among the faces of the same body part (the part of the
+        face's first vertex). Carries per-face data (e.g. colour clusters) from one level of
+        detail of a body to another."""
+        from scipy.spatial import cKDTree
+
+        def centroids(m):
+            return m.vertices[m.faces].mean(axis=1).astype(np.float64), m.part[m.faces[:, 0]]
+
+        mine, my_part = centroids(self)
+        theirs, their_part = centroids(other)
+        out = np.empty(len(theirs), dtype=np.int64)
+        for p in np.unique(their_part):
+            dst = np.flatnonzero(their_part == p)
+            src = np.flatnonzero(my_part == p)
+            if not len(src):  # a part this mesh lacks: the nearest face of any part
+                src = np.arange(len(mine))
+            out[dst] = src[cKDTree(mine[src]).query(theirs[dst])[1]]
+        return out
+
     def skin(self, skinning: np.ndarray) -> np.ndarray:
         """CPU linear blend skinning.
 

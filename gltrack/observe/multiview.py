@@ -131,10 +131,15 @@ class SilhouetteLikelihood:
     blocking : "layers" (occluder polygons and Bandouch's non-human foreground removal),
         "polygons" (the occluder polygons only) or "none"
     appearance : bool, score the colour channel once :meth:`init_appearance` has run
+    coarse : BodyModel, optional, the same body with a coarser mesh
+        (:meth:`~gltrack.body.model.BodyModel.with_lod`): a second engine scores it
+        (:meth:`scores` with ``coarse=True``), with this frame's masks and the colour clusters
+        of its nearest triangles of ``body``
 
     Attributes
     ----------
     engine : ScoringEngine
+    coarse_engine : ScoringEngine or None
     appearance : AppearanceModel or None
     area : float, unblocked foreground pixels of the current frame at tile resolution, summed
         over the cameras (at least 1): the scale of ``e_S``
@@ -144,13 +149,20 @@ class SilhouetteLikelihood:
     """
 
     def __init__(self, ctx, body, observation: MultiviewObservation, *, tile: int = 64,
-                 blocking: str = "layers", appearance: bool = True):
+                 blocking: str = "layers", appearance: bool = True, coarse=None):
         if blocking not in BLOCKING:
             raise ValueError(f"blocking must be one of {', '.join(BLOCKING)}, got {blocking!r}")
         self.body, self.obs = body, observation
         self.engine = ScoringEngine(ctx, body.mesh, body.skeleton.n_joints, observation.pinholes,
                                     tile=tile)
         self.engine.set_kinematics(body.kin)
+        self.coarse_engine = self._coarse_faces = None
+        if coarse is not None:
+            self.coarse_engine = ScoringEngine(ctx, coarse.mesh, coarse.skeleton.n_joints,
+                                               observation.pinholes, tile=tile,
+                                               programs=self.engine.programs)
+            self.coarse_engine.set_kinematics(coarse.kin)
+            self._coarse_faces = body.mesh.nearest_faces(coarse.mesh)
         self.blocking = blocking
         self.env = (EnvironmentLayers(ctx, observation.pinholes, programs=self.engine.programs)
                     if blocking == "layers" else None)
@@ -209,8 +221,13 @@ class SilhouetteLikelihood:
             else:
                 block = np.zeros_like(fg)
             self.engine.set_masks(c, fg, block)
+            if self.coarse_engine is not None:
+                self.coarse_engine.set_masks(c, fg, block)
             if self.appearance is not None:
-                self.engine.set_appearance(c, hls.observed_bits(img), self.appearance.tri_bits())
+                bits, tri = hls.observed_bits(img), self.appearance.tri_bits()
+                self.engine.set_appearance(c, bits, tri)
+                if self.coarse_engine is not None:
+                    self.coarse_engine.set_appearance(c, bits, tri[self._coarse_faces])
             fgs.append(fg)
             blocks.append(block)
         T = self.engine.tile
@@ -226,9 +243,11 @@ class SilhouetteLikelihood:
         self._iou_frame = None  # a re-read frame (same number, other masks) is uploaded again
         return images, fgs, blocks
 
-    def scores(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Silhouette error e_S (N,) and appearance count c_A (N,) or None, summed over cameras."""
-        r = self.engine.score_poses(np.atleast_2d(X), self.channels)
+    def scores(self, X: np.ndarray, coarse: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """Silhouette error e_S (N,) and appearance count c_A (N,) or None, summed over cameras;
+        of the coarse mesh with ``coarse`` (when there is one)."""
+        eng = self.coarse_engine if coarse and self.coarse_engine is not None else self.engine
+        r = eng.score_poses(np.atleast_2d(X), self.channels)
         e_s = r[:, :, 1].sum(axis=1)
         c_a = r[:, :, 2].sum(axis=1) if self.appearance is not None else None
         return e_s, c_a
@@ -301,4 +320,7 @@ class SilhouetteLikelihood:
         if self.env is not None:
             self.env.release()
             self.env = None
+        if self.coarse_engine is not None:
+            self.coarse_engine.release()
+            self.coarse_engine = None
         self.engine.release()

@@ -13,8 +13,8 @@ from .base import Tracker
 from .blobfilter import ApfBlobsOptions, ApfBlobsTracker, CondensationOptions, CondensationTracker
 from .depth import DepthOptions, HillClimbDepthTracker
 from .ep import EvidenceDepthTracker, EvidenceOnlyDepthTracker, EvidenceOptions
-from .multiview import (AnnealedOptions, APFTracker, HpsOptions, HPSTracker, MultiviewOptions,
-                        PSTracker, SIRTracker)
+from .multiview import (AnnealedOptions, ApfOptions, APFTracker, HpsOptions, HPSTracker,
+                        MultiviewOptions, PSTracker, SIRTracker)
 from .options import Options
 from .vlmm import VlmmOptions, VlmmTracker
 
@@ -46,7 +46,7 @@ METHODS: dict[str, Method] = {
                  "depth: evidence propagation alone"),
     "sir": Method("multiview", SIRTracker, MultiviewOptions,
                   "multi-view: sampling importance resampling"),
-    "apf": Method("multiview", APFTracker, AnnealedOptions,
+    "apf": Method("multiview", APFTracker, ApfOptions,
                   "multi-view: annealed particle filter"),
     "ps": Method("multiview", PSTracker, AnnealedOptions, "multi-view: partitioned sampling"),
     "hps": Method("multiview", HPSTracker, HpsOptions,
