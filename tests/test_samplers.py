@@ -323,35 +323,61 @@ def test_apf_layers_hit_survival_target_and_sharpen():
     assert betas[-1] > 1.3 * betas[0]  # the weight function sharpens as the set concentrates
 
 
-def test_apf_coarse_layers_weight_with_the_coarse_function_first():
-    x0, target, wfn = bump_problem(9)
-    calls = []
-
+def _counted(wfn, calls):
+    """The bump's weight function (``fine``) and a cheaper, slightly wrong approximation of it
+    (``coarse``: the bump half a sigma off), each logging its calls and batch sizes."""
     def fine(x):
-        calls.append("fine")
+        calls.append(("fine", len(x)))
         return wfn(x)
 
-    def coarse(x):  # a cheaper, slightly wrong approximation: the bump half a sigma off
-        calls.append("coarse")
+    def coarse(x):
+        calls.append(("coarse", len(x)))
         return wfn(x - 0.5 * SPACE.sigma)
+    return fine, coarse
 
-    apf = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4, coarse_layers=4)
+
+def test_apf_weights_its_early_layers_with_the_coarse_function():
+    x0, target, wfn = bump_problem(9)
+    calls = []
+    fine, coarse = _counted(wfn, calls)
+    apf = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4, fine_layers=2)
     p = np.repeat(x0[None], 300, axis=0)
     res = apf.step(p, fine, np.random.default_rng(1), coarse_fn=coarse)
-    assert calls == ["coarse"] * 4 + ["fine"] * 2
+    assert [c for c, _ in calls] == ["coarse"] * 4 + ["fine"] * 2
     assert res.evaluations == 6 * 300
     # the estimate is placed by the full function's last layers: near its bump, not the coarse one's
     assert err(res.estimate, target) < err(res.estimate, target + 0.5 * SPACE.sigma)
-    # without a coarse function the coarse layers are ordinary ones: the run of coarse_layers=0
+    # without a coarse function every layer is an ordinary one: the run of the default sampler
     calls.clear()
-    a = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4, coarse_layers=4).step(
-        p, fine, np.random.default_rng(1))
+    a = apf.step(p, fine, np.random.default_rng(1))
     b = AnnealedParticleFilter(SPACE, layers=6, alpha=0.4).step(p, fine, np.random.default_rng(1))
-    assert calls == ["fine"] * 12
+    assert [c for c, _ in calls] == ["fine"] * 12
     np.testing.assert_array_equal(a.estimate, b.estimate)
-    for bad in (6, 7, -1):  # the last layer always weights with the full function
-        with pytest.raises(ValueError, match="coarse_layers"):
-            AnnealedParticleFilter(SPACE, layers=6, coarse_layers=bad)
+    for bad in (0, -1):  # the last layer always weights with the full function
+        with pytest.raises(ValueError, match="fine_layers"):
+            AnnealedParticleFilter(SPACE, layers=6, fine_layers=bad)
+        with pytest.raises(ValueError, match="fine_layers"):
+            HierarchicalSampler.from_dofs(DOFS, 30, fine_layers=bad)
+
+
+def test_hps_ends_every_annealing_run_with_the_full_function():
+    x0, target, wfn = bump_problem(10)
+    calls = []
+    fine, coarse = _counted(wfn, calls)
+    smp = HierarchicalSampler.from_dofs(DOFS, 30, torso_layers=4, limb_layers=2,
+                                        joint_layers=3, fine_layers=1)
+    p = np.repeat(x0[None], 300, axis=0)
+    res = smp.step(p, fine, np.random.default_rng(3), coarse_fn=coarse)
+    names = [c for c, _ in calls]
+    assert res.evaluations == sum(n for _, n in calls) == smp.evaluations_per_step(300)
+    # torso: 3 coarse layers then 1 fine; each limb partition (2 layers) 1 + 1, each paired
+    # partition (3 layers) 2 + 1; the combination of the pipelines scores with the full one
+    assert names[:4] == ["coarse"] * 3 + ["fine"] and names[-1] == "fine"
+    limb_runs = len(smp.pipelines[0].layers) + len(smp.pipelines[1].layers)
+    paired_runs = len(smp.pipelines[2].layers)
+    assert names.count("coarse") == 3 + limb_runs + 2 * paired_runs
+    assert names.count("fine") == 1 + limb_runs + paired_runs + 1
+    assert err(res.estimate, target) < err(x0, target)
 
 
 def test_hps_diagnostics_and_min_spread():

@@ -204,17 +204,38 @@ def test_mesh_lod_is_the_mesh_the_engine_scores(dataset, ctx):
     assert not np.allclose(e_s[0], e_s[1])
 
 
-def test_apf_early_layers_score_the_coarse_mesh(dataset, ctx, tmp_path):
+def test_early_annealing_layers_score_the_coarse_mesh(dataset, ctx, tmp_path):
     from gltrack.data.dataset import Dataset
-    from gltrack.track.multiview import ApfOptions, APFTracker, coarse_layer_count
+    from gltrack.track.multiview import (AnnealedOptions, ApfOptions, APFTracker, HpsOptions,
+                                         HPSTracker, uses_coarse_mesh)
 
     path, body, P = dataset
     ds = Dataset.open(path)
-    assert coarse_layer_count("apf", ApfOptions()) == 8  # 10 layers, the last 2 fine
-    assert coarse_layer_count("apf", ApfOptions(layers=4, fine_layers=6)) == 0
-    assert coarse_layer_count("apf", ApfOptions(fine_layers=0)) == 0
-    assert coarse_layer_count("apf", ApfOptions(mesh_lod=0)) == 0  # already the coarsest
-    assert coarse_layer_count("ps", ApfOptions()) == 0
+    assert uses_coarse_mesh("apf", ApfOptions()) and not uses_coarse_mesh("hps", HpsOptions())
+    assert uses_coarse_mesh("hps", HpsOptions(fine_layers=1))
+    assert not uses_coarse_mesh("apf", ApfOptions(layers=4, fine_layers=6))
+    assert not uses_coarse_mesh("apf", ApfOptions(fine_layers=0))
+    assert not uses_coarse_mesh("apf", ApfOptions(mesh_lod=0))  # already the coarsest
+    assert not uses_coarse_mesh("ps", AnnealedOptions())
+    assert uses_coarse_mesh("hps", HpsOptions(layers=1, limb_layers=1, joint_layers=2,
+                                              fine_layers=1))
+    assert not uses_coarse_mesh("hps", HpsOptions(layers=1, limb_layers=1, joint_layers=1,
+                                                  fine_layers=1))
+    # hps: its runs end on the fine mesh, the rest of them score the coarse one
+    tr = HPSTracker(ds, body, ctx, HpsOptions(particles=30, layers=3, fine_layers=1),
+                    np.random.default_rng(0))
+    try:
+        tr.start(0, P[0])
+        fine0, coarse0 = tr.engine.evaluations, tr.likelihood.coarse_engine.evaluations
+        tr.step(1)
+        pipes = list(zip(tr.sampler.shares(30), tr.sampler.pipelines))
+        # torso 2 coarse layers + 1 fine; every limb partition all but its last layer coarse;
+        # the combination of the pipelines (and the estimate's record) fine
+        assert tr.likelihood.coarse_engine.evaluations - coarse0 == 2 * 30 + sum(
+            n * sum(k - 1 for k in p.layers) for n, p in pipes)
+        assert tr.engine.evaluations - fine0 >= 30 + sum(n * len(p.layers) for n, p in pipes) + 30
+    finally:
+        tr.close()
     tr = APFTracker(ds, body, ctx, ApfOptions(particles=30, layers=4, fine_layers=1),
                     np.random.default_rng(0))
     try:
@@ -239,7 +260,7 @@ def test_apf_early_layers_score_the_coarse_mesh(dataset, ctx, tmp_path):
         assert not np.array_equal(e_c, e_f)
     finally:
         tr.close()
-    # only apf anneals on a coarse mesh
+    # ps has no coarse layers
     cfg = tmp_path / "c.toml"
     for method, text in (("ps", "fine_layers = 2\n"), ("apf", "fine_layers = -1\n")):
         cfg.write_text(text)

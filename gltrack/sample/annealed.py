@@ -49,7 +49,7 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
            factor: float = 0.5, scale: float = 0.5, floor: float = 0.02,
            first_sigma=None, min_spread: float | None = None, resampler="systematic",
            stage: str = "anneal", first_scale: float = 1.0, coarse_fn=None,
-           coarse_layers: int = 0) -> AnnealOutput:
+           fine_layers: int = 1) -> AnnealOutput:
     """Run annealing layers that diffuse only ``dims``.
 
     Layer 0 diffuses with the motion-model noise (``first_sigma``, default ``space.sigma``);
@@ -77,10 +77,12 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
     resampler : str or callable
     stage : str, label for the diagnostics
     coarse_fn : callable like ``weight_fn``, optional, a cheaper approximation of it (e.g. a
-        coarser mesh) that weights the first ``coarse_layers`` layers; the later layers, and so
+        coarser mesh) that weights the layers before the last ``fine_layers``; those, and so
         the returned weights, are ``weight_fn``'s. Early layers are flattened by small
         exponents and only have to move the set towards the mode; the last ones place it.
-    coarse_layers : int >= 0, layers weighted with ``coarse_fn`` (ignored without it)
+        (With ``min_spread`` a run that stops early may end on a coarse layer.)
+    fine_layers : int >= 1, the last layers weighted with ``weight_fn`` when ``coarse_fn`` is
+        given
 
     Returns
     -------
@@ -91,6 +93,9 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
                          f"{', '.join(VARIANTS)}")
     if int(layers) < 1:
         raise ValueError(f"layers must be >= 1, got {layers}")
+    if int(fine_layers) < 1:
+        raise ValueError(f"fine_layers must be >= 1, got {fine_layers}")
+    n_coarse = int(layers) - int(fine_layers) if coarse_fn is not None else 0
     resample = get_resampler(resampler)
     x = space.check(particles)
     n = x.shape[0]
@@ -106,7 +111,7 @@ def anneal(particles, weight_fn, rng: np.random.Generator, space: StateSpace, *,
             noise = layer_noise(diffusion, m, w, x[:, dims], base,
                                 factor=factor, scale=scale, floor=floor)
             x = diffuse(x[resample(w.W, rng, n)], rng, space, dims=dims, **noise)
-        lw = evaluate(coarse_fn if coarse_fn is not None and m < coarse_layers else weight_fn, x)
+        lw = evaluate(coarse_fn if m < n_coarse else weight_fn, x)
         evals += n
         raw = Weights(lw)
         beta = 1.0 if alpha is None else annealing_exponent(lw, alpha)
@@ -132,23 +137,24 @@ class AnnealedParticleFilter:
     diffusion : {"covariance", "layer_variance", "constant"}, default ``"covariance"``
     factor, scale, floor : see :func:`~gltrack.sample.diffusion.layer_noise`
     resampler : str or callable
-    coarse_layers : int >= 0, first layers of a frame weighted with the ``coarse_fn`` given to
-        :meth:`step` (all layers but the last at most; see :func:`anneal`)
+    fine_layers : int >= 1, with a ``coarse_fn`` given to :meth:`step`, the last layers of a
+        frame weighted with ``weight_fn``; the ones before them use ``coarse_fn`` (see
+        :func:`anneal`)
     """
 
     def __init__(self, space: StateSpace, *, layers: int = 10, alpha: float = 0.5,
                  diffusion: str = "covariance", factor: float = 0.5, scale: float = 0.5,
-                 floor: float = 0.02, resampler="systematic", coarse_layers: int = 0):
+                 floor: float = 0.02, resampler="systematic", fine_layers: int = 1):
         if diffusion not in VARIANTS:
             raise ValueError(f"unknown diffusion variant {diffusion!r}; choose one of "
                              f"{', '.join(VARIANTS)}")
         self.space, self.layers, self.alpha = space, int(layers), alpha
         self.diffusion, self.factor, self.scale, self.floor = diffusion, factor, scale, floor
         self.resampler = resampler
-        if not 0 <= int(coarse_layers) < self.layers:
-            raise ValueError(f"coarse_layers must be in 0..{self.layers - 1} (the last layer "
-                             f"weights with the full function), got {coarse_layers}")
-        self.coarse_layers = int(coarse_layers)
+        if int(fine_layers) < 1:
+            raise ValueError(f"fine_layers must be >= 1 (the last layer weights with the full "
+                             f"function), got {fine_layers}")
+        self.fine_layers = int(fine_layers)
 
     def evaluations_per_step(self, n: int) -> int:
         return int(n) * self.layers
@@ -160,8 +166,8 @@ class AnnealedParticleFilter:
         ``predict_fn(particles (N, D), rng) -> (N, D)``, optional, replaces the first layer's
         Gaussian diffusion as the motion model
         (see :func:`~gltrack.sample.base.predict`, also for ``predict_scale``).
-        ``coarse_fn``, optional, weights the first :attr:`coarse_layers` layers instead of
-        ``weight_fn``.
+        ``coarse_fn``, optional, weights the layers before the last :attr:`fine_layers`
+        instead of ``weight_fn``.
 
         Returns a SampleResult with ``evaluations == N * layers``.
         """
@@ -169,6 +175,6 @@ class AnnealedParticleFilter:
         out = anneal(particles, weight_fn, rng, self.space, layers=self.layers, first_scale=scale,
                      alpha=self.alpha, diffusion=self.diffusion, factor=self.factor,
                      scale=self.scale, floor=self.floor, resampler=self.resampler, stage="apf",
-                     coarse_fn=coarse_fn, coarse_layers=self.coarse_layers)
+                     coarse_fn=coarse_fn, fine_layers=self.fine_layers)
         return finish(out.particles, out.weights, out.raw_lw, rng, out.particles.shape[0],
                       self.resampler, out.evaluations, out.layers)

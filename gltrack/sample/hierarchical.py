@@ -89,13 +89,17 @@ class HierarchicalSampler:
         required when the weight function normalises per batch, like ``bandouch_weights``);
         ``"reuse"`` keeps each pipeline's last weights (valid for absolute weight functions).
     resampler : str or callable
+    fine_layers : int >= 1, with a ``coarse_fn`` given to :meth:`step`, the last layers of the
+        torso's annealing and of every limb partition's weighted with ``weight_fn``; the ones
+        before them use ``coarse_fn`` (see :func:`~gltrack.sample.annealed.anneal`). The final
+        combination (``reweight="evaluate"``) uses ``weight_fn``.
     **anneal_kw : forwarded to :func:`~gltrack.sample.annealed.anneal` (factor, scale, floor)
     """
 
     def __init__(self, space: StateSpace, torso, pipelines, *, torso_layers: int = 6,
                  min_spread: float | None = None, alpha: float = 0.3,
                  diffusion: str = "covariance", reweight: str = "evaluate",
-                 resampler="systematic", **anneal_kw):
+                 resampler="systematic", fine_layers: int = 1, **anneal_kw):
         if diffusion not in VARIANTS:
             raise ValueError(f"unknown diffusion variant {diffusion!r}; choose one of "
                              f"{', '.join(VARIANTS)}")
@@ -109,6 +113,9 @@ class HierarchicalSampler:
         self.torso_layers, self.min_spread, self.alpha = int(torso_layers), min_spread, alpha
         self.diffusion, self.reweight, self.resampler = diffusion, reweight, resampler
         self.anneal_kw = anneal_kw
+        if int(fine_layers) < 1:
+            raise ValueError(f"fine_layers must be >= 1, got {fine_layers}")
+        self.fine_layers = int(fine_layers)
 
     @classmethod
     def from_dofs(cls, dofs, fps: float = 30.0, *, limb_layers: int = 2,
@@ -134,13 +141,15 @@ class HierarchicalSampler:
         return int(n) * self.torso_layers + limbs + (n if self.reweight == "evaluate" else 0)
 
     def step(self, particles, weight_fn, rng: np.random.Generator,
-             predict_fn=None, predict_scale: float = 0.0) -> SampleResult:
+             predict_fn=None, predict_scale: float = 0.0, coarse_fn=None) -> SampleResult:
         """Advance one frame; ``particles`` (N, D) is the previous equally weighted set.
 
         ``predict_fn(particles (N, D), rng) -> (N, D)``, optional, moves the whole state once
         before the torso annealing and replaces the first-layer diffusion of the torso and of
         every limb partition
         (see :func:`~gltrack.sample.base.predict`, also for ``predict_scale``).
+        ``coarse_fn``, optional, weights each annealing run's layers before its last
+        :attr:`fine_layers` instead of ``weight_fn``.
 
         Returns a SampleResult whose ``info["pipeline_weight"]`` maps each pipeline name to
         the share of the final weight its particles won.
@@ -150,6 +159,7 @@ class HierarchicalSampler:
         resample = get_resampler(self.resampler)
         kw = dict(self.anneal_kw)
         kw["first_scale"] = scale * kw.get("first_scale", 1.0)
+        kw.update(coarse_fn=coarse_fn, fine_layers=self.fine_layers)
         torso = anneal(x, weight_fn, rng, self.space, dims=self.torso, layers=self.torso_layers,
                        alpha=self.alpha, diffusion=self.diffusion, min_spread=self.min_spread,
                        resampler=self.resampler, stage="torso", **kw)
