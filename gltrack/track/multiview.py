@@ -342,8 +342,8 @@ class HpsOptions(AnnealedOptions):
         measured against 0 with 1 (2026-11-27, llvmpipe, the default 200 particles, true
         body and start, paired runs) it took 0.81x the time, but the mean joint error was
         +0.7 +- 0.9 mm (own-mesh subject, 5 frames of walk, hop and salsa, seeds 0-2) and
-        +1.8 +- 4.2 mm (MakeHuman subject, 15 frames of walk and salsa, seeds 0-6), worse
-        in 16 of the 23 pairs: within the noise, but leaning the wrong way for a default
+        +0.7 +- 3.7 mm (MakeHuman subject, 15 frames of walk and salsa, seeds 0-7), worse
+        in 16 of the 25 pairs: within the noise, but leaning the wrong way for a default
     """
 
     limb_layers: int = 2
