@@ -613,7 +613,8 @@ def write_masks(writer, frames, params=None, floor=None):
     """
     import time
 
-    from gltrack.observe.foreground import CUES, ForegroundParams, estimate_foreground
+    from gltrack.observe.foreground import (CUES, ForegroundParams, estimate_foreground,
+                                            level_floor)
 
     params = params or ForegroundParams()
     cams = writer.cameras
@@ -632,7 +633,7 @@ def write_masks(writer, frames, params=None, floor=None):
              ", ".join(cues))
     t0 = time.perf_counter()
     res = estimate_foreground([feed(c) for c in cams], cams, params=params, cues=cues,
-                              floor=None if floor is None else ((0.0, 1.0, 0.0), floor))
+                              floor=level_floor(floor))
     for k, cam in enumerate(cams):
         for j in range(frames):
             m = res.masks[k][j]

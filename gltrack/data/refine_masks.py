@@ -125,7 +125,7 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
     """
     from tqdm import tqdm
 
-    from gltrack.observe.foreground import ForegroundParams, estimate_foreground
+    from gltrack.observe.foreground import ForegroundParams, estimate_foreground, level_floor
 
     rec = ds.meta.get("masks") if isinstance(ds.meta.get("masks"), dict) else {}
     params = ForegroundParams(**{k: rec[k] for k in ("work_size", "passes") if k in rec})
@@ -143,10 +143,9 @@ def _background_pass(ds, cams, source, posed, *, band_m, reach_m, core_m, progre
             yield ds.colour(f, k)
 
     # the support cue as ingest ran it: with the floor the dataset records (internal +Y)
-    floor = ds.floor_height()
     res = estimate_foreground([feed(k) for k in cams], [ds.cameras[k] for k in cams],
                               person_masks=person, params=params,
-                              floor=None if floor is None else ((0.0, 1.0, 0.0), float(floor)))
+                              floor=level_floor(ds.floor_height()))
     for f in range(ds.frames):
         for j, k in enumerate(cams):
             cam = ds.cameras[k]

@@ -268,6 +268,12 @@ def check_floor(floor):
     return n / norm, h
 
 
+def level_floor(height):
+    """The ``floor`` argument (``(normal, height)``) for a horizontal floor of gltrack's
+    internal +Y-up frame at ``height`` metres, or None when ``height`` is None (unknown)."""
+    return None if height is None else ((0.0, 1.0, 0.0), float(height))
+
+
 def support_column(lo, size, floor, *, reach: float, step: float):
     """Where a subject's support is: a vertical column from the floor up to the hull's centroid.
 
