@@ -226,6 +226,53 @@ def test_stage_climb_cost_never_rises_and_is_the_true_cost():
     assert np.all(np.abs(res.X) <= 0.8)
 
 
+def _coupled_quadratic(seed, d):
+    A = np.random.default_rng(seed).normal(size=(d, d))
+    H = A @ A.T + 0.1 * np.eye(d)  # coupled: combined moves overshoot and fall back
+
+    def fn(X):
+        return np.einsum("ni,ij,nj->n", X - 0.3, H, X - 0.3)
+
+    return fn
+
+
+def test_stage_climb_scores_its_early_levels_with_the_coarse_function():
+    """``coarse_fn`` scores the levels of every stage before its last ``fine_levels``, ``cost_fn``
+    the rest; the costs of the two are never compared, so a constant offset between them
+    changes nothing, and the returned costs are ``cost_fn``'s."""
+    fn = _coupled_quadratic(4, 6)
+    X0 = np.random.default_rng(5).uniform(-1, 1, (4, 6))
+    stages = [[0, 1, 2], [3, 4, 5]]
+    ref = stage_climb(fn, X0, stages, 0.5, levels=3)
+    fine, coarse = Counting(fn), Counting(lambda X: fn(X) + 10.0)
+    res = stage_climb(fine, X0, stages, 0.5, levels=3, coarse_fn=coarse, fine_levels=1)
+    np.testing.assert_array_equal(res.X, ref.X)
+    np.testing.assert_array_equal(res.cost, ref.cost)
+    assert coarse.calls == 2 * 2 and fine.calls in (2, 3)  # 2 stages x (2 coarse + 1 fine)
+    assert res.calls == coarse.calls + fine.calls
+    assert res.evaluations == coarse.rows + fine.rows
+    # fine_levels covering every level: the coarse function is never called
+    never = Counting(lambda X: fn(X) + 10.0)
+    res2 = stage_climb(fn, X0, stages, 0.5, levels=3, coarse_fn=never, fine_levels=3)
+    assert never.calls == 0
+    np.testing.assert_array_equal(res2.X, ref.X)
+
+
+def test_stage_climb_moves_where_the_coarse_function_leads():
+    """A coarse function with its minimum elsewhere changes the search (it is really used),
+    and the costs returned are still the true ones of the poses returned."""
+    fn = _coupled_quadratic(6, 4)
+    X0 = np.zeros((2, 4))
+    X0[1] = 0.5
+    ref = stage_climb(fn, X0, [[0, 1], [2, 3]], 0.6, levels=3)
+    res = stage_climb(fn, X0, [[0, 1], [2, 3]], 0.6, levels=3,
+                      coarse_fn=lambda X: fn(X - 0.4), fine_levels=1)
+    assert not np.allclose(res.X, ref.X)
+    np.testing.assert_allclose(res.cost, fn(res.X), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="fine_levels"):
+        stage_climb(fn, X0, [[0, 1]], 0.6, coarse_fn=fn, fine_levels=0)
+
+
 def test_stage_climb_validates():
     with pytest.raises(ValueError, match="stage"):
         stage_climb(lambda X: X[:, 0], np.zeros(3), [[0, 5]], 0.1)

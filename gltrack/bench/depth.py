@@ -288,6 +288,8 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None, protocols=tuple(P
     -------
     dict (JSON-able): ``machine``, ``renderer``, ``frames``, ``options`` (tracker defaults),
     ``clips``: clip -> {``source_frames``, ``runs``: "method/likelihood" -> figures,
+    ``variants``: {"hc+ep/fine_levels_1": figures} (the early climb levels on the coarse
+    view, smoothed likelihood; printed as ``coarse1``),
     ``recovery``: method -> {``frames`` (int or None), ``text``, ``arm_error_m`` per frame},
     ``honest``: {``runs``, ``body_error``, ``wrong_start``}} or {``skipped``: reason};
     ``targets`` (oracle, see module docstring); ``honest_targets``; ``seconds``.
@@ -343,6 +345,12 @@ def bench_depth(quick: bool = False, clips=None, out_dir=None, protocols=tuple(P
                 if smooth:
                     unperturbed[method] = limb_error(res, gt, PERTURB_PART)
                 log.info("%s %s/%s: %s", clip, method, lik, row)
+        # the early climb levels on the coarse view (``fine_levels``, an option, off by
+        # default): its frames/s and error next to the default's, from the same run
+        row, _, _ = _run(ds, "hc+ep", {"smooth": True, "fine_levels": 1},
+                         work / clip / "hc+ep_fine_levels_1", ctx)
+        entry["variants"] = {"hc+ep/fine_levels_1": row}
+        log.info("%s hc+ep fine_levels 1: %s", clip, row)
         for method in ("hc", "hc+ep"):
             fault = limb_fault(PERTURB_AT, PERTURB_PART, PERTURB_RAD)
             row, res, gt = _run(ds, method, {}, work / clip / f"{method}_recovery", ctx,
@@ -380,8 +388,9 @@ def format_table(res: dict) -> str:
         if "skipped" in e:
             lines.append(f"{clip:6s} skipped: {e['skipped']}")
             continue
-        for key, r in e["runs"].items():
+        for key, r in [*e["runs"].items(), *e.get("variants", {}).items()]:
             m, lik = key.split("/")
+            lik = {"fine_levels_1": "coarse1"}.get(lik, lik)
             lines.append(f"{clip:6s} {m:6s} {lik:8s} {r['marker_mean_m']:7.3f} {r['marker_max_m']:7.3f} "
                          f"{r['frac_markers_tracked']:6.3f} {r['frac_markers_failed']:6.3f} "
                          f"{r['mean_joint_error_mm']:8.1f} {r['fps']:6.2f} {r['evaluations_per_frame']:7.0f}"

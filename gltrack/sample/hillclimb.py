@@ -255,7 +255,8 @@ class StageClimbResult:
 
 
 def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
-                shrink: float = 0.4, lower=None, upper=None, cost0=None) -> StageClimbResult:
+                shrink: float = 0.4, lower=None, upper=None, cost0=None, coarse_fn=None,
+                fine_levels: int = 1) -> StageClimbResult:
     """Coarse-to-fine search of K independent start poses, one ``cost_fn`` call per stage level.
 
     Like :func:`hill_climb` with every entry of ``stages`` a batched group, with two differences
@@ -290,6 +291,15 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
     shrink : float in (0, 1), half-width factor from one level to the next
     lower, upper : (D,) float, optional, limits; candidates are clamped into them
     cost0 : (K,) float, optional, ``cost_fn(X0)`` when known
+    coarse_fn : callable like ``cost_fn``, optional, a cheaper approximation of it (e.g. a
+        coarser mesh in a smaller tile) that scores the levels of every stage before its last
+        ``fine_levels``; those, and so the returned costs, are ``cost_fn``'s. Why: the coarse
+        levels only have to bring each dim near its best value (their steps are 2.5-6x the
+        last level's); the last level places it. Costs of the two functions are never
+        compared: every call scores the lanes' centres, and a combined move still to be
+        checked when the function changes is scored again by the new one (one more row)
+    fine_levels : int >= 1, the last levels of each stage scored with ``cost_fn`` when
+        ``coarse_fn`` is given
 
     Returns
     -------
@@ -303,6 +313,9 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
     if int(levels) < 1 or int(grid) < 2 or not 0 < shrink < 1:
         raise ValueError(f"need levels >= 1, grid >= 2, 0 < shrink < 1; got {levels}, {grid}, "
                          f"{shrink}")
+    if int(fine_levels) < 1:
+        raise ValueError(f"fine_levels must be >= 1, got {fine_levels}")
+    n_coarse = max(int(levels) - int(fine_levels), 0) if coarse_fn is not None else 0
     steps = np.broadcast_to(np.asarray(steps, dtype=np.float64), (k, d))
     lo = np.full(d, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
     hi = np.full(d, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
@@ -320,6 +333,8 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
     fallback_x = [None] * k
     fallback_c = np.full(k, np.nan)
     call = _CountedCost(cost_fn)
+    coarse = _CountedCost(coarse_fn) if n_coarse else None
+    scored_by = None  # the function of the last call: the costs held now are its
 
     def settle(lane, c_centre):
         """The centre's cost is known now: keep a combined move or fall back. True = kept."""
@@ -338,6 +353,11 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
     centre = np.flatnonzero(offsets == 0.0)
     for g in groups:
         for level in range(int(levels)):
+            fn = coarse if level < n_coarse else call
+            # a combined move's fallback was scored by the other function: score it again
+            again = ([lane for lane in range(k) if fallback_x[lane] is not None]
+                     if scored_by is not None and fn is not scored_by else [])
+            scored_by = fn
             blocks, vals_all = [], []
             for lane in range(k):
                 h = steps[lane, g] * shrink ** level
@@ -348,7 +368,11 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
                 # the last row is the centre itself: its cost checks the lane's last move
                 blocks.append(cand)
                 vals_all.append(vals)
-            c_all = call(np.concatenate(blocks)).reshape(k, -1)
+            c_all = fn(np.concatenate(blocks + [fallback_x[lane][None] for lane in again]))
+            if again:
+                fallback_c[again] = c_all[-len(again):]
+                c_all = c_all[:-len(again)]
+            c_all = c_all.reshape(k, -1)
             for lane in range(k):
                 if not settle(lane, c_all[lane, -1]):
                     # this batch searched about a rejected pose; a candidate of it that beats
@@ -377,8 +401,10 @@ def stage_climb(cost_fn, X0, stages, steps, *, levels: int = 3, grid: int = 5,
                 X[lane, g[moved]] = vals[moved, best[moved]]
                 cost[lane] = np.nan  # the combined move has not been scored yet
     pending = [lane for lane in range(k) if fallback_x[lane] is not None or np.isnan(cost[lane])]
-    if pending:
+    if pending:  # the last level of every stage is a fine one, so these are cost_fn's
         c = call(X[pending])
         for lane, cl in zip(pending, c):
             settle(lane, cl)
-    return StageClimbResult(X, cost, call.evaluations, call.calls)
+    n_eval = call.evaluations + (coarse.evaluations if coarse else 0)
+    n_call = call.calls + (coarse.calls if coarse else 0)
+    return StageClimbResult(X, cost, n_eval, n_call)

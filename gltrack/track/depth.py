@@ -73,6 +73,21 @@ class DepthOptions(Options):
     """Options of the depth tracker (``--config`` keys). Defaults are general, not per clip.
 
     tile : tile side in pixels (the observation is resampled to it); 64 or 128
+    fine_levels : when > 0, only the last ``fine_levels`` levels of every stage climb
+        (``stages = "parts"``: the per-frame climb, its refinement passes and the evidence
+        proposals' climbs) score the default view; the levels before them score a coarse view,
+        ``coarse_mesh_lod``'s mesh in a ``coarse_tile`` tile
+        (:func:`gltrack.sample.hillclimb.stage_climb`'s ``coarse_fn``). 0 (default) = off: every
+        level on the default view. Measured (hc+ep, true body and start, 60 frames, walk / hop /
+        salsa with noise seeds 0-4, llvmpipe, paired against 0): with 1, the 1008-triangle mesh
+        in the same 64-pixel tile runs 1.15x the frames/s (median; 1.01-1.33) and its mean
+        marker error is 5.3 +- 4.7 mm higher over the 15 (walk +0.8 +- 2.7, hop +6.6 +- 13.7,
+        salsa +8.5 +- 5.0, worse in 4 of 5), the cost of the coarse mesh's shape that the last
+        level's small steps (0.16 of the first's) cannot take back; in a 32-pixel tile it lost
+        the walk (seed 0: 0.157 m against 0.049), the limbs then under a pixel wide. Hence off:
+        an option where frames/s matter more than the last millimetres
+    coarse_tile : tile side in pixels of the coarse view (``fine_levels``)
+    coarse_mesh_lod : mesh level of detail of the coarse view (``fine_levels``; see ``mesh_lod``)
     smooth : Ganapathi's smoothed likelihood (best 3x3 neighbour + penalty) instead of pixel-wise
     scale : smoothstep saturation distance, metres
     penalty : neighbour penalty of the smoothed likelihood
@@ -149,6 +164,9 @@ class DepthOptions(Options):
     """
 
     tile: int = 64
+    fine_levels: int = 0
+    coarse_tile: int = 64
+    coarse_mesh_lod: int = 0
     smooth: bool = True
     scale: float = 0.15
     penalty: float = 0.02
@@ -181,6 +199,8 @@ class DepthOptions(Options):
     def problems(self):
         return super().problems() + [
             *choice(self, "tile", (16, 32, 64, 128, 256)),
+            *choice(self, "coarse_tile", (16, 32, 64, 128, 256)),
+            *choice(self, "coarse_mesh_lod", MESH_LODS),
             *choice(self, "stages", ("parts", "chain")),
             *choice(self, "mesh_lod", MESH_LODS),
             *positive(self, "scale", "search_sigmas", "root_sigma_scale"),
@@ -188,8 +208,8 @@ class DepthOptions(Options):
             *at_least(self, 1, "levels", "passes", "heading_hypotheses", "init_headings",
                       "init_keep"),
             *at_least(self, 2, "grid"),
-            *at_least(self, 0, "penalty", "prior_weight", "bg_tolerance", "bg_sigmas",
-                      "range_noise_2m", "crop_margin", "area_unit", "refine_passes",
+            *at_least(self, 0, "fine_levels", "penalty", "prior_weight", "bg_tolerance",
+                      "bg_sigmas", "range_noise_2m", "crop_margin", "area_unit", "refine_passes",
                       "velocity_search", "heading_margin", "init_depth_offset"),
             *within(self, "velocity_damping", 0, 1)]
 
@@ -213,10 +233,16 @@ class HillClimbDepthTracker(Tracker):
         self.obs = DepthObservation(dataset, bg_tolerance=o.bg_tolerance, bg_sigmas=o.bg_sigmas,
                                     range_noise_2m=o.range_noise_2m)
         self.programs = ProgramCache(ctx)
+        params = DepthCostParams(scale=o.scale, penalty=o.penalty, smooth=o.smooth)
         self.likelihood = DepthLikelihood(
             ctx, self.body, self.obs.pinhole, tile=o.tile, crop=o.crop, area_unit=o.area_unit,
-            params=DepthCostParams(scale=o.scale, penalty=o.penalty, smooth=o.smooth),
-            programs=self.programs)
+            params=params, programs=self.programs)
+        # the coarse view the early levels of every stage climb score (``fine_levels``)
+        self.coarse_likelihood = None
+        if o.fine_levels > 0 and (o.coarse_tile, o.coarse_mesh_lod) != (o.tile, o.mesh_lod):
+            self.coarse_likelihood = DepthLikelihood(
+                ctx, body.with_lod(o.coarse_mesh_lod), self.obs.pinhole, tile=o.coarse_tile,
+                crop=o.crop, area_unit=o.area_unit, params=params, programs=self.programs)
         self.sigma = body.dofs.sigma_at(dataset.fps).copy()
         self._root_rot = root_rotation_dofs(body.dofs)
         self.sigma[self._root_rot] *= o.root_sigma_scale
@@ -240,19 +266,29 @@ class HillClimbDepthTracker(Tracker):
         self.rng = rng
 
     # -- objective ------------------------------------------------------------------------
-    def depth_cost(self, X: np.ndarray) -> np.ndarray:
+    def depth_cost(self, X: np.ndarray, coarse: bool = False) -> np.ndarray:
         """(N,) depth cost of N poses against the current observation, in ``area_unit``s
-        (tile pixels when ``area_unit`` is 0)."""
-        return self.likelihood.cost(X)
+        (tile pixels when ``area_unit`` is 0); ``coarse``: on the coarse view (``coarse_tile``,
+        ``coarse_mesh_lod``) when the tracker has one."""
+        lk = self.coarse_likelihood if coarse and self.coarse_likelihood else self.likelihood
+        return lk.cost(X)
 
-    def objective(self, x_pred, prior_weight: float | None = None):
+    def objective(self, x_pred, prior_weight: float | None = None, coarse: bool = False):
         """The frame's cost function ``X (N, D) -> (N,)``: depth cost plus the velocity prior
-        centred on ``x_pred`` with ``prior_weight`` (default: the option)."""
+        centred on ``x_pred`` with ``prior_weight`` (default: the option); ``coarse``: the
+        depth cost on the coarse view."""
         def cost(X):
             X = np.atleast_2d(X)
-            return self.depth_cost(X) + self.prior(X, x_pred, prior_weight)
+            return self.depth_cost(X, coarse) + self.prior(X, x_pred, prior_weight)
 
         return cost
+
+    def coarse_objective(self, x_pred, prior_weight: float | None = None):
+        """:meth:`objective` on the coarse view, for the early levels of the stage climbs
+        (``fine_levels``); None when the tracker has no coarse view."""
+        if self.coarse_likelihood is None:
+            return None
+        return self.objective(x_pred, prior_weight, coarse=True)
 
     def prior(self, X, x_pred, prior_weight: float | None = None) -> np.ndarray:
         """(N,) the velocity prior's term of :meth:`objective` for poses ``X`` (N, D)."""
@@ -294,7 +330,8 @@ class HillClimbDepthTracker(Tracker):
         levels = self.opt.levels if levels is None else levels
         if (stages or self.opt.stages) == "parts":
             return self._refine_stages(cost, x_start, steps, levels,
-                                       self.opt.refine_passes if extra is None else extra)
+                                       self.opt.refine_passes if extra is None else extra,
+                                       self.coarse_objective(x_pred, prior_weight))
         evals = calls = 0
         c0 = None
         if self.opt.heading_hypotheses > 1:
@@ -313,10 +350,13 @@ class HillClimbDepthTracker(Tracker):
                     res = r
         return type(res)(res.x, res.cost, evals, calls)
 
-    def _stage_climb(self, cost, X, stages, steps, levels, cost0=None):
+    def _stage_climb(self, cost, X, stages, steps, levels, cost0=None, coarse=None):
+        """:func:`stage_climb` with the options; ``coarse``: the coarse view's cost function,
+        scoring every stage's levels before its last ``fine_levels``."""
         d = self.body.dofs
         return stage_climb(cost, X, stages, steps, levels=levels, grid=self.opt.grid,
-                           shrink=self.opt.shrink, lower=d.lower, upper=d.upper, cost0=cost0)
+                           shrink=self.opt.shrink, lower=d.lower, upper=d.upper, cost0=cost0,
+                           coarse_fn=coarse, fine_levels=max(self.opt.fine_levels, 1))
 
     def heading_starts(self, x, steps) -> np.ndarray:
         """(H, D) copies of ``x`` turned to the ``heading_hypotheses`` pelvis headings, one coarse
@@ -337,9 +377,10 @@ class HillClimbDepthTracker(Tracker):
         clear = np.nonzero(costs < costs[mid] - self.opt.heading_margin)[0]
         return int(clear[np.argmin(costs[clear])]) if clear.size else mid
 
-    def _refine_stages(self, cost, x_start, steps, levels, extra):
+    def _refine_stages(self, cost, x_start, steps, levels, extra, coarse=None):
         """:meth:`refine` with ``stages="parts"``: the root stages climbed from every heading
-        hypothesis in the same calls, the best one then climbs the torso and limb stages."""
+        hypothesis in the same calls, the best one then climbs the torso and limb stages
+        (``coarse``: the coarse view's cost, see :meth:`_stage_climb`)."""
         from gltrack.sample.hillclimb import HillClimbResult
 
         stages = self.stage_dofs
@@ -347,14 +388,14 @@ class HillClimbDepthTracker(Tracker):
         X = np.asarray(x_start, dtype=np.float64)[None]
         if self.opt.heading_hypotheses > 1 and self.root_dofs:
             r = self._stage_climb(cost, self.heading_starts(x_start, steps), self.root_stages,
-                                  steps, levels)
+                                  steps, levels, coarse=coarse)
             evals, calls = r.evaluations, r.calls
             k = self.pick_heading(r.cost)
             X, c0 = r.X[k][None], r.cost[k:k + 1]
             stages = stages[len(self.root_stages):]
         else:
             c0 = None
-        r = self._stage_climb(cost, X, stages, steps, levels, cost0=c0)
+        r = self._stage_climb(cost, X, stages, steps, levels, cost0=c0, coarse=coarse)
         evals, calls = evals + r.evaluations, calls + r.calls
         x, c = r.X[0], float(r.cost[0])
         limbs, torso = stages[-1:], stages[:-1]
@@ -363,7 +404,7 @@ class HillClimbDepthTracker(Tracker):
                 if not st:
                     continue
                 r = self._stage_climb(cost, x[None], st, h * steps, max(1, levels - 1),
-                                      cost0=[c])
+                                      cost0=[c], coarse=coarse)
                 evals, calls = evals + r.evaluations, calls + r.calls
                 x, c = r.X[0], float(r.cost[0])
         return HillClimbResult(x, c, evals, calls)
@@ -427,6 +468,8 @@ class HillClimbDepthTracker(Tracker):
         margin = self.opt.crop_margin if margin is None else margin
         pts = self.body.joints(np.asarray(pose)[None])[0] if pose is not None else None
         self.likelihood.set_view(z, pts, margin)
+        if self.coarse_likelihood is not None:
+            self.coarse_likelihood.set_view(z, pts, margin)
 
     def observe(self, frame, pose=None):
         """Read frame ``frame``, upload it around ``pose`` (default: the prediction) and return
@@ -554,4 +597,6 @@ class HillClimbDepthTracker(Tracker):
 
     def close(self):
         self.likelihood.release()
+        if self.coarse_likelihood is not None:
+            self.coarse_likelihood.release()
         self.programs.release()

@@ -199,12 +199,14 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
         DOF)."""
         opt = self.opt
         cost = self.objective(x_pred)
+        coarse = self.coarse_objective(x_pred)
         steps = self.search_steps()
         d = self.body.dofs
 
         def refine_many(X, parts=None):
             if opt.stages == "parts":
-                r = self._stage_climb(cost, X, self.stage_dofs, steps, opt.refine_levels)
+                r = self._stage_climb(cost, X, self.stage_dofs, steps, opt.refine_levels,
+                                      coarse=coarse)
             else:
                 r = hill_climb_lanes(cost, X, self.order, steps, levels=opt.refine_levels,
                                      grid=opt.grid, shrink=opt.shrink,
