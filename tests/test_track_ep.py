@@ -400,9 +400,16 @@ def test_early_climb_levels_score_the_coarse_view(ds, ctx):
         assert tr.coarse_likelihood.body.mesh.n_faces < tr.body.mesh.n_faces
         tr.start(0, gt[0])
         tr.observe(1)
-        rows = {"fine": [], "coarse": []}
-        for name, lk in (("fine", tr.likelihood), ("coarse", tr.coarse_likelihood)):
-            lk.cost = (lambda f, r: lambda X: (r.append(len(X)), f(X))[1])(lk.cost, rows[name])
+        rows = {"fine": [], "coarse": []}  # the candidates of every call of each view
+
+        def counted(cost, sizes):
+            def cost_counted(X):
+                sizes.append(len(X))
+                return cost(X)
+            return cost_counted
+
+        tr.likelihood.cost = counted(tr.likelihood.cost, rows["fine"])
+        tr.coarse_likelihood.cost = counted(tr.coarse_likelihood.cost, rows["coarse"])
         x_pred = tr.predict()
         res = tr.refine(x_pred, x_pred)
         o = tr.opt
