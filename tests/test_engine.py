@@ -322,6 +322,41 @@ def test_chunking_matches_single_batch(ctx, body, rng):
     assert small.evaluations == 37
 
 
+
+def test_compute_reduction_reads_all_cameras_back_once(ctx, body, rng):
+    """The compute reduction leaves each camera's sums in a slice of its own and reads them back
+    once per call (the mipmap one once per camera): three cameras, 17 candidates (a partly
+    filled 8x4 grid, whose unused tiles must not spill into the next camera's slice), each
+    camera's depth cost against the CPU twin, and the cameras' observations differ so a slice
+    read for the wrong camera would show."""
+    skel, dofs, kin, mesh = body
+    if ctx.version_code < 430:
+        pytest.skip("the compute reduction needs OpenGL 4.3")
+    cs = cams(3)
+    truth = kin.skinning_matrices(random_poses(body, rng, 1))
+    S = kin.skinning_matrices(random_poses(body, rng, 17))
+    params = DepthCostParams()
+    obs = [ref_render(mesh, truth, cam)[0][0] for cam in cs]
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, depth_params=params) as eng:
+        for c in range(len(cs)):
+            eng.set_depth(c, obs[c])
+        got, reads = {}, {}
+        for red in ("mipmap", "compute"):
+            eng.reduction, eng._auto_pending = red, False
+            before = eng.readbacks
+            got[red] = eng.score(S, ["depth"])[:, :, 0]
+            reads[red] = eng.readbacks - before
+    assert reads == {"mipmap": 3, "compute": 1}
+    for c, cam in enumerate(cs):
+        rz, _ = ref_render(mesh, S, cam)
+        want = np.array([ref.depth_cost(rz[i], obs[c], scale=params.scale,
+                                        c_model_only=params.c_model_only,
+                                        c_obs_only=params.c_obs_only, smooth=params.smooth,
+                                        penalty=params.penalty) for i in range(len(S))])
+        assert_close(got["compute"][:, c], want, f"compute cam{c}")
+        assert_close(got["mipmap"][:, c], want, f"mipmap cam{c}")
+    assert np.abs(got["compute"][:, 0] - got["compute"][:, 1]).max() > 10
+
 def test_partly_filled_grid_ignores_stale_tiles(ctx, body, rng):
     """17 candidates take an 8x4 grid of which only 3 rows are cleared, scored and reduced: a
     full batch of other poses on the same target before must not leak into their scores (both

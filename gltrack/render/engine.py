@@ -16,6 +16,9 @@ Per frame the observations are uploaded once (:meth:`ScoringEngine.set_depth`, `
 3. the per-pixel costs of ``shaders/costs.glsl`` are reduced to one sum per tile and channel,
    either by a full-screen cost pass plus the mipmap chain (the paper's method,
    ``shaders/cost.frag``) or by one compute work group per tile (``shaders/reduce.comp``, GL 4.3+).
+   The compute reduction writes every camera's sums to a slice of one buffer that is read back
+   once per batch, so the device is not made to wait between the cameras; the mipmap one reads
+   each camera's top level as soon as it is built.
    Each reduction sums in a fixed order, so a score is bit for bit the same on every call on a
    given machine; the two orders differ in the last bits of float32 (about 1e-7 relative), so
    ``reduction="auto"`` picks by capability (compute where there is GL 4.3), never by timing: a
@@ -396,6 +399,9 @@ class ScoringEngine:
         self._owns_programs = programs is None
         self.views = [_View(c, self.tile) for c in cameras]
         self.evaluations = 0
+        #: reads of scores from the device (one per call and batch with the compute reduction,
+        #: one per camera with the mipmap one); a worker's reads are its own
+        self.readbacks = 0
         self._released = False
         self._targets: dict = {}
         self._build_geometry()
@@ -545,7 +551,9 @@ class ScoringEngine:
         cost_fbo = ctx.framebuffer(color_attachments=[cost])
         bones = ctx.texture((3 * self.n_bones, cols * rows), 4, dtype="f4")
         bones.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        sums = ctx.buffer(reserve=cols * rows * 16) if ctx.version_code >= 430 else None
+        # one slice of cols * rows vec4 sums per camera: a call reads them back once
+        sums = (ctx.buffer(reserve=len(self.views) * cols * rows * 16)
+                if ctx.version_code >= 430 else None)
         skinned = (ctx.buffer(reserve=cols * rows * self._skinned_bytes_per_candidate())
                    if self.skinning == "compute" else None)
         t = dict(z=z, zt=zt, depth=depth, fbo=fbo, fbo_z=fbo_z, cost=cost, cost_fbo=cost_fbo, bones=bones,
@@ -858,10 +866,29 @@ class ScoringEngine:
             self.reduction = self._time_reductions(t, n, cols, rows, channels)
         res = np.empty((n, len(self.views), 4))
         with_tri = self._needs_tri(channels)
+        # The compute reduction writes each camera's sums to a slice of its own, read back once
+        # after the last camera: a read waits for the GPU to finish everything queued, so one
+        # read per camera would stall the pipeline between the cameras (render, reduce, wait,
+        # render...). The mipmap reduction reuses one cost texture and reads every camera.
+        deferred = self.reduction == "compute"
         for c, v in enumerate(self.views):
             self._render(t, v, n, cols, rows, with_tri)
-            res[:, c] = self._reduce(t, v, n, cols, rows, channels, self.reduction)
+            sums = self._reduce(t, v, n, cols, rows, channels, self.reduction, slot=c,
+                                read=not deferred)
+            if not deferred:
+                res[:, c] = sums
+        if deferred:
+            res[:] = self._read_sums(t, n, cols * rows, len(self.views))
         return res
+
+    def _read_sums(self, t, n, stride, slots):
+        """(n, slots, 4) float64: the first ``n`` sums of each of the compute reduction's first
+        ``slots`` slices (``stride`` tiles apart) in ``t["sums"]``, in one read."""
+        # glGetBufferSubData after shader storage writes needs the barrier (GL 4.3, 7.13)
+        self.ctx.memory_barrier()
+        raw = np.frombuffer(t["sums"].read(size=slots * stride * 16), dtype=np.float32)
+        self.readbacks += 1
+        return raw.reshape(slots, stride, 4)[:, :n].transpose(1, 0, 2).astype(np.float64)
 
     def _used_height(self, n, cols):
         """Pixel rows of a target that a batch of ``n`` tiles in ``cols`` columns uses: the grid
@@ -936,7 +963,10 @@ class ScoringEngine:
         if "depth_params" in prog:
             prog["depth_params"].value = self.depth_params.as_vec4()
 
-    def _reduce(self, t, v, n, cols, rows, channels, method):
+    def _reduce(self, t, v, n, cols, rows, channels, method, slot=0, read=True):
+        """Sum the per-pixel costs of each of the ``n`` tiles of camera ``v`` just rendered:
+        (n, 4) float64, or None for the compute reduction with ``read`` False, which leaves
+        them in slice ``slot`` of ``t["sums"]`` (:meth:`_read_sums`)."""
         defines = self._defines(channels)
         if method == "compute":
             if self.reduce_group == "narrow":
@@ -944,10 +974,10 @@ class ScoringEngine:
             prog = self.programs.get(compute="reduce.comp", defines=defines, aliases=self._aliases())
             self._bind_cost_inputs(prog, t, v, channels)
             prog["grid"].value = (cols, rows)
+            prog["base"].value = slot * cols * rows
             t["sums"].bind_to_storage_buffer(0)
             prog.run(cols, self._used_height(n, cols) // self.tile, 1)  # the tiles in use
-            sums = np.frombuffer(t["sums"].read(size=n * 16), dtype=np.float32).reshape(n, 4)
-            return sums.astype(np.float64)
+            return self._read_sums(t, n, cols * rows, slot + 1)[:, slot] if read else None
         prog = self.programs.get(vertex="fullscreen.vert", fragment="cost.frag", defines=defines,
                                  aliases=self._aliases())
         self._bind_cost_inputs(prog, t, v, channels)
@@ -959,6 +989,7 @@ class ScoringEngine:
         vao.render(moderngl.TRIANGLES, vertices=3)
         t["cost"].build_mipmaps(0, t["levels"])
         raw = np.frombuffer(t["cost"].read(level=t["levels"]), dtype=np.float32).reshape(rows, cols, 4)
+        self.readbacks += 1
         means = raw.reshape(rows * cols, 4)[:n].astype(np.float64)
         return means * float(self.tile * self.tile)
 
