@@ -1,11 +1,11 @@
-"""The arm sweep (gltrack.sample.sweep): its grids and its choice, on plain weight functions."""
+"""The limb sweep (gltrack.sample.sweep): its grids and its choice, on plain weight functions."""
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from gltrack.body.model import BodyModel
-from gltrack.sample.sweep import arm_grid, sweep_arms
+from gltrack.sample.sweep import LEGS, arm_grid, limb_grid, sweep_limbs
 
 
 @pytest.mark.parametrize("preset", ["full", "38", "25", "upper"])
@@ -52,12 +52,32 @@ def test_sweep_moves_an_arm_to_the_best_grid_point_and_keeps_a_better_estimate()
         assert moved == set(grids[len(calls) - 1][1].tolist())  # one arm at a time, only it
         return -np.linalg.norm(X[:, idx] - target[idx], axis=1)
 
-    res = sweep_arms(x, weights, grids)
+    res = sweep_limbs(x, weights, grids)
     np.testing.assert_allclose(res.estimate[idx], grid[40])
     np.testing.assert_allclose(res.delta, res.estimate - x)
     assert res.improved == ("r_shoulder",)
     assert calls == [len(g[2]) + 1 for g in grids] and res.evaluations == sum(calls)
     # an estimate that already weighs most stays as it is
-    res = sweep_arms(target, lambda X: -np.linalg.norm(X - target, axis=1), grids)
+    res = sweep_limbs(target, lambda X: -np.linalg.norm(X - target, axis=1), grids)
     np.testing.assert_array_equal(res.estimate, target)
     assert res.improved == () and not res.delta.any()
+
+
+@pytest.mark.parametrize("preset", ["full", "38"])
+def test_limb_grids_add_each_legs_hip_swing_and_knee(preset):
+    """The limb grid holds both arms (as :func:`arm_grid`) and both legs: hip flexion and
+    abduction, knee flexion, spanning their limits."""
+    d = BodyModel.build(None, preset).dofs
+    grids = limb_grid(d, swing=4, flex=3)
+    assert [g[0] for g in grids] == ["l_shoulder", "r_shoulder", "l_hip", "r_hip"]
+    for (ja, ia, ga), (jb, ib, gb) in zip(grids[:2], arm_grid(d, swing=4, flex=3)):
+        assert ja == jb and ia.tolist() == ib.tolist()
+        np.testing.assert_array_equal(ga, gb)
+    for joint, idx, grid in grids[2:]:
+        side = joint[0]
+        assert [d.names[i] for i in idx] == [f"{side}_hip_rx", f"{side}_hip_rz",
+                                             f"{side}_knee_rx"]
+        assert grid.shape == (4 * 4 * 3, 3)
+        np.testing.assert_allclose(grid.min(axis=0), d.lower[idx])
+        np.testing.assert_allclose(grid.max(axis=0), d.upper[idx])
+    assert [g[0] for g in limb_grid(d, 4, 3, LEGS)] == ["l_hip", "r_hip"]

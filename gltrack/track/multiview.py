@@ -90,7 +90,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 from gltrack.sample.partitions import exchange_limbs, limb_pairs
-from gltrack.sample.sweep import arm_grid, sweep_arms
+from gltrack.sample.sweep import arm_grid, limb_grid, sweep_limbs
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
@@ -172,6 +172,12 @@ class MultiviewOptions(Options):
         degrees) refined on its own by a hierarchical sampler (``particles / (2 init_keep)``
         particles each, at least 50)
     init_rounds : ``--init auto``: steps of that sampler per refined pose
+    init_limb_sweep : ``--init auto``: points per swing axis of a grid sweep of each limb
+        (:func:`gltrack.sample.sweep.limb_grid`: shoulder and hip swing, elbow and knee flexion
+        at 4 points) of the best refined pose of each heading; a pose the sweep improves is
+        refined again the same way and competes with the others. 0 = off. A refinement from a
+        library pose leaves a raised limb hanging where the silhouette does not pull it up
+        (see :mod:`gltrack.sample.sweep`); 10 (default): 4 x 401 evaluations per heading
     iou_tile : resolution (power of two, pixels per side) at which ``info["iou"]`` is counted;
         0 = the tracking ``tile``. 256 by default: at 64 px a limb is 2-3 pixels wide, so the
         IoU would measure the tile more than the fit; 256 px costs one render of one pose
@@ -238,6 +244,7 @@ class MultiviewOptions(Options):
     init_headings: int = 12
     init_keep: int = 3
     init_rounds: int = 1
+    init_limb_sweep: int = 10
     iou_tile: int = 256
     mesh_lod: int = 1
     mask_refine: str = "auto"
@@ -252,7 +259,8 @@ class MultiviewOptions(Options):
             *choice(self, "foreground", FOREGROUNDS), *choice(self, "prior", PRIORS),
             *choice(self, "appearance_init", APPEARANCE_INITS),
             *at_least(self, 0, "prior_lam", "prior_diffusion", "particles", "appearance_refine",
-                      "sigma_scale", "shape_weight", "appearance_weight", "arm_sweep"),
+                      "sigma_scale", "shape_weight", "appearance_weight", "arm_sweep",
+                      "init_limb_sweep"),
             *positive(self, "sharpness")]
         if self.prior == "vlmm" and not self.prior_model:
             bad.append("prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour model "
@@ -265,8 +273,9 @@ class MultiviewOptions(Options):
         t = self.iou_tile
         if t and (t < 16 or t > 512 or t & (t - 1)):
             bad.append(f"iou_tile = {t} (0, or a power of two in 16..512)")
-        if self.arm_sweep == 1:
-            bad.append("arm_sweep = 1 (0 = off, or at least 2 points per swing axis)")
+        for name in ("arm_sweep", "init_limb_sweep"):
+            if getattr(self, name) == 1:
+                bad.append(f"{name} = 1 (0 = off, or at least 2 points per swing axis)")
         return bad
 
 
@@ -519,7 +528,8 @@ class MultiviewTracker(Tracker):
         sampler (``init_rounds`` steps on the frame, whatever the method), and the refined pose
         (best particle or estimate) with the lowest silhouette error starts the tracker. The
         best refined pose of each heading is also tried with its legs and arms exchanged
-        (mirrored), refined the same way.
+        (mirrored), refined the same way, and with each limb swept over a grid
+        (``init_limb_sweep``), refined again where a limb moved.
 
         Why each on its own: a silhouette fits about as well turned by 180 degrees, and one
         particle set seeded at both headings often settled on the wrong one (3 of 6 runs on the
@@ -585,6 +595,20 @@ class MultiviewTracker(Tracker):
             more = np.concatenate([mirrors, d.validate(np.stack([p for m in mirrors for p in refine(m)]))])
             final = np.concatenate([final, more])
             e_final = np.concatenate([e_final, self.likelihood.scores(more)[0]])
+        # The best refined pose of each heading with each limb swept over a grid, refined again
+        # where a limb moved: a limb the refinement left hanging beside the body (a raised leg,
+        # a raised arm) is in a narrow basin that the sampler's diffusion seldom reaches.
+        if o.init_limb_sweep:
+            grids = limb_grid(d, o.init_limb_sweep)
+            swept = []
+            for m in two_modes(final, e_final, yaw):
+                sw = sweep_limbs(m, lambda X: -self.likelihood.scores(X)[0], grids)
+                if sw.improved:
+                    swept += [sw.estimate, *refine(sw.estimate)]
+            if swept:
+                more = d.validate(np.stack(swept))
+                final = np.concatenate([final, more])
+                e_final = np.concatenate([e_final, self.likelihood.scores(more)[0]])
         # a refined pose that left the hull has explained the person away (masks that miss
         # much of the person, e.g. a still torso, make a model out of view score well): it may
         # not start the tracker while one near the person does
@@ -667,7 +691,7 @@ class MultiviewTracker(Tracker):
         evaluations = int(res.evaluations)
         swept = ()
         if self._arm_grids:
-            sw = sweep_arms(x, self.weights, self._arm_grids)
+            sw = sweep_limbs(x, self.weights, self._arm_grids)
             evaluations += sw.evaluations
             swept = sw.improved
             if swept:  # the particles follow the estimate's arms
