@@ -8,20 +8,25 @@ from gltrack.body.model import BodyModel
 from gltrack.sample.sweep import LEGS, arm_grid, limb_grid, sweep_limbs
 
 
+
+def assert_grids_span(d, grids, dofs, points):
+    """Each grid moves its side's ``dofs`` (suffixes after ``l_`` / ``r_``), has ``swing**2 *
+    flex`` distinct points for ``points = (swing, flex)`` and spans those DOFs' limits."""
+    swing, flex = points
+    for joint, idx, grid in grids:
+        assert [d.names[i] for i in idx] == [f"{joint[0]}_{n}" for n in dofs]
+        assert grid.shape == (swing * swing * flex, len(dofs))
+        np.testing.assert_allclose(grid.min(axis=0), d.lower[idx])
+        np.testing.assert_allclose(grid.max(axis=0), d.upper[idx])
+        assert len(np.unique(grid, axis=0)) == len(grid)
+
 @pytest.mark.parametrize("preset", ["full", "38", "25", "upper"])
 def test_grids_span_each_arms_limits(preset):
     body = BodyModel.build(None, preset)
     d = body.dofs
     grids = arm_grid(d, swing=5, flex=3)
     assert [g[0] for g in grids] == ["l_shoulder", "r_shoulder"]
-    for joint, idx, grid in grids:
-        side = joint[0]
-        assert [d.names[i] for i in idx] == [f"{side}_shoulder_ry", f"{side}_shoulder_rz",
-                                             f"{side}_elbow_ry"]
-        assert grid.shape == (5 * 5 * 3, 3)
-        np.testing.assert_allclose(grid.min(axis=0), d.lower[idx])
-        np.testing.assert_allclose(grid.max(axis=0), d.upper[idx])
-        assert len(np.unique(grid, axis=0)) == len(grid)
+    assert_grids_span(d, grids, ("shoulder_ry", "shoulder_rz", "elbow_ry"), (5, 3))
 
 
 def test_an_arm_without_its_elbow_is_swept_by_its_swing_only():
@@ -73,11 +78,5 @@ def test_limb_grids_add_each_legs_hip_swing_and_knee(preset):
     for (ja, ia, ga), (jb, ib, gb) in zip(grids[:2], arm_grid(d, swing=4, flex=3)):
         assert ja == jb and ia.tolist() == ib.tolist()
         np.testing.assert_array_equal(ga, gb)
-    for joint, idx, grid in grids[2:]:
-        side = joint[0]
-        assert [d.names[i] for i in idx] == [f"{side}_hip_rx", f"{side}_hip_rz",
-                                             f"{side}_knee_rx"]
-        assert grid.shape == (4 * 4 * 3, 3)
-        np.testing.assert_allclose(grid.min(axis=0), d.lower[idx])
-        np.testing.assert_allclose(grid.max(axis=0), d.upper[idx])
+    assert_grids_span(d, grids[2:], ("hip_rx", "hip_rz", "knee_rx"), (4, 3))
     assert [g[0] for g in limb_grid(d, 4, 3, LEGS)] == ["l_hip", "r_hip"]
