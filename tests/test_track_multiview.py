@@ -111,7 +111,8 @@ def test_options_are_validated(dataset, tmp_path):
     cfg = tmp_path / "bad.toml"
     for text in ("nonsense = 3\n", "estimate = \"median\"\n", "particles = \"many\"\n", "tile = 48\n",
                  "sigma_scale = -1\n", "appearance_init = \"half\"\n", "prior_diffusion = -1\n",
-                 "iou_tile = 48\n", "mesh_lod = 3\n", "arm_sweep = 1\n", "arm_sweep = -2\n"):
+                 "iou_tile = 48\n", "mesh_lod = 3\n", "arm_sweep = 1\n", "arm_sweep = -2\n",
+                 "leg_sweep = 1\n"):
         cfg.write_text(text)
         rc = main(["-q", "track", "--body", "dataset", str(path), "--method", "hps", "--out", str(tmp_path / "o"),
                    "--config", str(cfg), "--overwrite"])
@@ -553,14 +554,10 @@ def test_auto_init_tries_the_other_leg_forward(tmp_path, ctx, monkeypatch):
 
 
 
-def test_auto_init_limb_sweep_finds_a_raised_leg(tmp_path, ctx):
-    """The subject stands on its left leg with the right thigh raised forward and the knee
-    bent. Refined from the library's standing poses, the start leaves that leg hanging (knee
-    over 0.3 m off); the start's limb sweep (each heading's best pose with every limb swept
-    over a grid and refined again) finds it: knee within 0.1 m in the best hypothesis."""
-    import gltrack.track.multiview as mv
-    from gltrack.data.dataset import Dataset
-
+def _raised_leg_dataset(path):
+    """A rendered subject standing on its left leg, the right thigh raised forward and the
+    knee bent (2 frames, 4 cameras): (body, poses (2, D), true joints (B, 3), right knee's
+    index)."""
     body = BodyModel.build()
     d, sk = body.dofs, body.skeleton
     P = np.repeat(d.zero(sk)[None], 2, axis=0)
@@ -571,7 +568,19 @@ def test_auto_init_limb_sweep_finds_a_raised_leg(tmp_path, ctx):
     want = body.joints(P[:1])[0]
     assert want[knee, 1] > want[sk.index("l_knee"), 1] + 0.3  # the premise: the leg is raised
     cams = ring_cameras((0.1, 0.9, 0.2), **dict(RING, radius=3.0))
-    render_dataset(tmp_path / "ds", body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
+    render_dataset(path, body, P, cams, FPS, np.random.default_rng(3), mask_flip=0.002)
+    return body, P, want, knee
+
+
+def test_auto_init_limb_sweep_finds_a_raised_leg(tmp_path, ctx):
+    """The subject stands on its left leg with the right thigh raised forward and the knee
+    bent. Refined from the library's standing poses, the start leaves that leg hanging (knee
+    over 0.3 m off); the start's limb sweep (each heading's best pose with every limb swept
+    over a grid and refined again) finds it: knee within 0.1 m in the best hypothesis."""
+    import gltrack.track.multiview as mv
+    from gltrack.data.dataset import Dataset
+
+    body, P, want, knee = _raised_leg_dataset(tmp_path / "ds")
 
     def knee_errors(sweep):
         # one heading, the true one (and its turned-round twin): only the limbs are in question
@@ -587,6 +596,40 @@ def test_auto_init_limb_sweep_finds_a_raised_leg(tmp_path, ctx):
     off, on = knee_errors(0), knee_errors(10)
     assert min(off) > 0.3, off
     assert on[0] < 0.1, on
+
+
+def test_leg_sweep_finds_a_raised_leg_the_particles_left_hanging(tmp_path, ctx):
+    """The tracker starts from the raised-leg subject's pose with that leg hanging (thigh 1.4
+    rad and knee 1.4 rad away). With the per-frame leg sweep the first step's estimate raises
+    it (knee within 0.12 m) and the particles follow; without it the knee stays off."""
+    import gltrack.track.multiview as mv
+    from gltrack.data.dataset import Dataset
+
+    body, P, want, knee = _raised_leg_dataset(tmp_path / "ds")
+    d = body.dofs
+    start = P[0].copy()
+    start[[d.index("r_hip_rx"), d.index("r_knee_rx")]] = 0.0  # hanging
+
+    def step(sweep):
+        opt = mv.HpsOptions(particles=40, leg_sweep=sweep)
+        tr = mv.HPSTracker(Dataset.open(tmp_path / "ds"), body, ctx, opt,
+                           np.random.default_rng(0))
+        try:
+            tr.start(0, start)
+            est = tr.step(1)
+            spread = np.linalg.norm(body.joints(tr.particles)[:, knee] - want[knee], axis=1)
+        finally:
+            tr.close()
+        return np.linalg.norm(body.joints(est.params[None])[0, knee] - want[knee]), est, spread
+
+    off, est_off, _ = step(0)
+    on, est_on, spread = step(10)
+    assert off > 0.3, off
+    assert on < 0.12, on
+    assert "r_hip" in est_on.info["limb_sweep"] and "limb_sweep" not in est_off.info
+    assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
+    assert est_on.evaluations - est_off.evaluations == sum(
+        len(g) + 1 for _, _, g in mv.limb_grid(d, 10, limbs=mv.LEGS))
 
 def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
     """The subject holds its right arm up; the tracker starts with it hanging (2 rad away, far
@@ -625,7 +668,7 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
     on, est_on, spread = step(10)
     assert off > 0.4, off
     assert on < 0.15, on
-    assert "r_shoulder" in est_on.info["arm_sweep"] and "arm_sweep" not in est_off.info
+    assert "r_shoulder" in est_on.info["limb_sweep"] and "limb_sweep" not in est_off.info
     assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
     assert est_on.evaluations - est_off.evaluations == sum(len(g) + 1 for _, _, g in
                                                              mv.arm_grid(d, 10))

@@ -26,11 +26,11 @@ LEGS = (("l_hip", "xz", "l_knee", "x"), ("r_hip", "xz", "r_knee", "x"))
 
 @dataclass(frozen=True)
 class SweepResult:
-    """What :func:`sweep_arms` did.
+    """What :func:`sweep_limbs` did.
 
     Attributes
     ----------
-    estimate : (D,) float, the estimate with every improved arm replaced
+    estimate : (D,) float, the estimate with every improved limb replaced
     delta : (D,) float, ``estimate`` minus the estimate given
     evaluations : int, poses weighted
     improved : tuple of str, the swing joints whose grid point won

@@ -90,7 +90,7 @@ from gltrack.sample import (AnnealedParticleFilter, HierarchicalSampler, Partiti
                             default_partitions, default_pipelines, fine_partitions)
 from gltrack.sample.diffusion import VARIANTS
 from gltrack.sample.partitions import exchange_limbs, limb_pairs
-from gltrack.sample.sweep import arm_grid, limb_grid, sweep_limbs
+from gltrack.sample.sweep import LEGS, arm_grid, limb_grid, sweep_limbs
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
 from .options import Options, at_least, choice, positive, within
@@ -218,6 +218,10 @@ class MultiviewOptions(Options):
         a frame against 3001; on the honest bench (hps, MakeHuman subject, seed 0) walk 53.9
         against 54.4 mm, salsa 82.9 against 86.0 mm (wrists better, elbows worse). Not enough
         to pay for 27-40 % more evaluations by default
+    leg_sweep : 0 (default, off) or points per swing axis of the leg sweep: as ``arm_sweep``,
+        for each leg's hip flexion and abduction and the knee's flexion (10: 2 x 401 more
+        evaluations a frame). For a raised or swinging leg that the particles leave hanging
+        beside the standing one
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -249,6 +253,7 @@ class MultiviewOptions(Options):
     mesh_lod: int = 1
     mask_refine: str = "auto"
     arm_sweep: int = 0
+    leg_sweep: int = 0
 
     def problems(self):
         bad = super().problems() + [
@@ -260,7 +265,7 @@ class MultiviewOptions(Options):
             *choice(self, "appearance_init", APPEARANCE_INITS),
             *at_least(self, 0, "prior_lam", "prior_diffusion", "particles", "appearance_refine",
                       "sigma_scale", "shape_weight", "appearance_weight", "arm_sweep",
-                      "init_limb_sweep"),
+                      "leg_sweep", "init_limb_sweep"),
             *positive(self, "sharpness")]
         if self.prior == "vlmm" and not self.prior_model:
             bad.append("prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour model "
@@ -273,7 +278,7 @@ class MultiviewOptions(Options):
         t = self.iou_tile
         if t and (t < 16 or t > 512 or t & (t - 1)):
             bad.append(f"iou_tile = {t} (0, or a power of two in 16..512)")
-        for name in ("arm_sweep", "init_limb_sweep"):
+        for name in ("arm_sweep", "leg_sweep", "init_limb_sweep"):
             if getattr(self, name) == 1:
                 bad.append(f"{name} = 1 (0 = off, or at least 2 points per swing axis)")
         return bad
@@ -452,7 +457,10 @@ class MultiviewTracker(Tracker):
         self.frames_done = 0
         self.refines_masks = resolve_mask_refine(self.opt.mask_refine, body.dofs.preset,
                                                  dataset.meta, self.obs.mode) == "grabcut"
-        self._arm_grids = arm_grid(body.dofs, self.opt.arm_sweep) if self.opt.arm_sweep else []
+        #: the per-frame sweep's grids: the arms' (``arm_sweep``), then the legs' (``leg_sweep``)
+        self._limb_grids = ((arm_grid(body.dofs, self.opt.arm_sweep) if self.opt.arm_sweep else [])
+                            + (limb_grid(body.dofs, self.opt.leg_sweep, limbs=LEGS)
+                               if self.opt.leg_sweep else []))
 
     @property
     def appearance(self):
@@ -690,11 +698,11 @@ class MultiviewTracker(Tracker):
         x = self.body.dofs.validate(x)[0]
         evaluations = int(res.evaluations)
         swept = ()
-        if self._arm_grids:
-            sw = sweep_limbs(x, self.weights, self._arm_grids)
+        if self._limb_grids:
+            sw = sweep_limbs(x, self.weights, self._limb_grids)
             evaluations += sw.evaluations
             swept = sw.improved
-            if swept:  # the particles follow the estimate's arms
+            if swept:  # the particles follow the estimate's limbs
                 x = sw.estimate
                 self.particles = self.body.dofs.validate(self.particles + sw.delta)
         if self.prior is not None:  # the particles as they go on to the next frame
@@ -726,8 +734,8 @@ class MultiviewTracker(Tracker):
                 **{key: [None if not np.isfinite(v) else round(float(v), 4) for v in row]
                    for key, row in zip(("iou", "model_on_fg", "fg_covered"), overlap)},
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
-        if self._arm_grids:
-            info["arm_sweep"] = list(swept)
+        if self._limb_grids:
+            info["limb_sweep"] = list(swept)
         if c_a is not None:
             info["c_a"] = c_a
         if self.refines_masks:
