@@ -615,45 +615,56 @@ def test_auto_init_limb_sweep_finds_a_raised_leg(tmp_path, ctx):
     assert on[0] < 0.1, on
 
 
+def _check_sweep(ds_path, body, ctx, start, want, joint, option, swept, grids, far, near,
+                 **fixed):
+    """Step ``hps`` (40 particles, ``fixed`` options) once from ``start`` on frame 0 of
+    ``ds_path`` with the sweep ``option`` off and at 10: without it the estimate's ``joint``
+    stays more than ``far`` metres from ``want`` (3,), with it it comes within ``near``, the
+    frame records ``swept`` as swept, the particles move with it, and the sweep costs one
+    evaluation per point of ``grids`` plus one per limb."""
+    import gltrack.track.multiview as mv
+    from gltrack.data.dataset import Dataset
+
+    def step(points):
+        opt = mv.HpsOptions(particles=40, **{option: points}, **fixed)
+        tr = mv.HPSTracker(Dataset.open(ds_path), body, ctx, opt, np.random.default_rng(0))
+        try:
+            tr.start(0, start)
+            est = tr.step(1)
+            spread = np.linalg.norm(body.joints(tr.particles)[:, joint] - want, axis=1)
+        finally:
+            tr.close()
+        return np.linalg.norm(body.joints(est.params[None])[0, joint] - want), est, spread
+
+    off, est_off, _ = step(0)
+    on, est_on, spread = step(10)
+    assert off > far, off
+    assert on < near, on
+    assert swept in est_on.info["limb_sweep"] and "limb_sweep" not in est_off.info
+    assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
+    assert est_on.evaluations - est_off.evaluations == sum(len(g) + 1 for _, _, g in grids)
+
+
 def test_leg_sweep_finds_a_raised_leg_the_particles_left_hanging(tmp_path, ctx):
     """The tracker starts from the raised-leg subject's pose with that leg hanging (thigh 1.4
     rad and knee 1.4 rad away). With the per-frame leg sweep the first step's estimate raises
     it (knee within 0.12 m) and the particles follow; without it the knee stays off."""
     import gltrack.track.multiview as mv
-    from gltrack.data.dataset import Dataset
 
     body, P, want, knee = _raised_leg_dataset(tmp_path / "ds")
     d = body.dofs
     start = P[0].copy()
     start[[d.index("r_hip_rx"), d.index("r_knee_rx")]] = 0.0  # hanging
 
-    def step(sweep):
-        opt = mv.HpsOptions(particles=40, leg_sweep=sweep)
-        tr = mv.HPSTracker(Dataset.open(tmp_path / "ds"), body, ctx, opt,
-                           np.random.default_rng(0))
-        try:
-            tr.start(0, start)
-            est = tr.step(1)
-            spread = np.linalg.norm(body.joints(tr.particles)[:, knee] - want[knee], axis=1)
-        finally:
-            tr.close()
-        return np.linalg.norm(body.joints(est.params[None])[0, knee] - want[knee]), est, spread
+    _check_sweep(tmp_path / "ds", body, ctx, start, want[knee], knee, "leg_sweep", "r_hip",
+                 mv.limb_grid(d, 10, limbs=mv.LEGS), far=0.3, near=0.12)
 
-    off, est_off, _ = step(0)
-    on, est_on, spread = step(10)
-    assert off > 0.3, off
-    assert on < 0.12, on
-    assert "r_hip" in est_on.info["limb_sweep"] and "limb_sweep" not in est_off.info
-    assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
-    assert est_on.evaluations - est_off.evaluations == sum(
-        len(g) + 1 for _, _, g in mv.limb_grid(d, 10, limbs=mv.LEGS))
 
 def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
     """The subject holds its right arm up; the tracker starts with it hanging (2 rad away, far
     beyond what one step's diffusion reaches). With the arm sweep the first step's estimate
     raises it (wrist within 0.15 m) and the particles follow; without it the wrist stays off."""
     import gltrack.track.multiview as mv
-    from gltrack.data.dataset import Dataset
 
     body = BodyModel.build()
     d, sk = body.dofs, body.skeleton
@@ -669,23 +680,5 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
     start = P[0].copy()
     start[d.index("r_shoulder_rz")] = 1.2  # hanging
 
-    def step(sweep):
-        opt = mv.HpsOptions(particles=40, arm_sweep=sweep, leg_sweep=0)
-        tr = mv.HPSTracker(Dataset.open(tmp_path / "ds"), body, ctx, opt,
-                           np.random.default_rng(0))
-        try:
-            tr.start(0, start)
-            est = tr.step(1)
-            spread = np.linalg.norm(body.joints(tr.particles)[:, wrist] - J[wrist], axis=1)
-        finally:
-            tr.close()
-        return np.linalg.norm(body.joints(est.params[None])[0, wrist] - J[wrist]), est, spread
-
-    off, est_off, _ = step(0)
-    on, est_on, spread = step(10)
-    assert off > 0.4, off
-    assert on < 0.15, on
-    assert "r_shoulder" in est_on.info["limb_sweep"] and "limb_sweep" not in est_off.info
-    assert np.median(spread) < 0.25, np.median(spread)  # the particles moved with it
-    assert est_on.evaluations - est_off.evaluations == sum(len(g) + 1 for _, _, g in
-                                                             mv.arm_grid(d, 10))
+    _check_sweep(tmp_path / "ds", body, ctx, start, J[wrist], wrist, "arm_sweep", "r_shoulder",
+                 mv.arm_grid(d, 10), far=0.4, near=0.15, leg_sweep=0)
