@@ -219,10 +219,9 @@ class MultiviewOptions(Options):
         against 54.4 mm, salsa 82.9 against 86.0 mm (wrists better, elbows worse). Not enough
         to pay for 27-40 % more evaluations by default
     leg_sweep : 0 (off; the default, except for ``hps``: :class:`HpsOptions`) or points per
-        swing axis of the leg sweep: as ``arm_sweep``,
-        for each leg's hip flexion and abduction and the knee's flexion (10: 2 x 401 more
-        evaluations a frame). For a raised or swinging leg that the particles leave hanging
-        beside the standing one
+        swing axis of the leg sweep: as ``arm_sweep``, for each leg's hip flexion and abduction
+        and the knee's flexion (10: 2 x 401 more evaluations a frame). For a raised or swinging
+        leg that the particles leave hanging beside the standing one
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
