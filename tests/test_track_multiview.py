@@ -84,17 +84,8 @@ def test_hps_tracks_better_than_standing_still(dataset, tmp_path):
     assert err < 70.0, err
     assert err < 0.5 * static, (err, static)
     assert len(frames) == N_FRAMES
-    # 60 particles: 6 torso layers, 8 limb layers, 1 re-weighting, + 1 for the estimate's
-    # score, + the default leg sweep's grids
-    want = 60 * 15 + 1 + _leg_sweep_evaluations(body.dofs)
-    assert all(f["evaluations"] == want for f in frames), [f["evaluations"] for f in frames]
-
-
-def _leg_sweep_evaluations(dofs) -> int:
-    """Evaluations of hps's default per-frame leg sweep: each leg's grid and its estimate."""
-    from gltrack.track.multiview import LEGS, HpsOptions, limb_grid
-
-    return sum(len(g) + 1 for _, _, g in limb_grid(dofs, HpsOptions().leg_sweep, limbs=LEGS))
+    # 60 particles: 6 torso layers, 8 limb layers, 1 re-weighting, + 1 for the estimate's score
+    assert all(f["evaluations"] == 60 * 15 + 1 for f in frames), [f["evaluations"] for f in frames]
 
 
 @pytest.mark.parametrize("method,config", [
@@ -129,8 +120,6 @@ def test_options_are_validated(dataset, tmp_path):
 
 
 def test_method_configs_share_the_budget():
-    from gltrack.track.multiview import HpsOptions, MultiviewOptions
-
     cfg = method_configs(2000, n_partitions=10)
     evals = {"sir": cfg["sir"][1]["particles"],
              "apf": cfg["apf"][1]["particles"] * cfg["apf"][1]["layers"],
@@ -138,11 +127,6 @@ def test_method_configs_share_the_budget():
              "hps": cfg["hps"][1]["particles"] * 15}
     assert all(abs(v - 2000) <= 15 for v in evals.values()), evals
     assert cfg["hps/4"][1]["particles"] == cfg["hps"][1]["particles"] // 4
-    # the samplers' comparison turns hps's default leg sweep off (its evaluations are on top
-    # of the budget); the honest protocol keeps it, as a user gets it
-    assert cfg["hps"][1]["leg_sweep"] == 0 and cfg["hps/4"][1]["leg_sweep"] == 0
-    assert "leg_sweep" not in method_configs(2000, sweeps=True)["hps"][1]
-    assert HpsOptions().leg_sweep > 0 and MultiviewOptions().leg_sweep == 0
 
 
 def test_background_subtraction_foreground_matches_silhouettes(dataset):
@@ -373,8 +357,7 @@ def test_hps_with_the_vlmm_prior_tracks(periodic, tmp_path):
         metrics, frames = _track(root / "ds", tmp_path / str(seed), "hps", cfg, seed=seed)
         errs.append(_summary(metrics))
         assert len(frames) == len(P)
-        assert all(f["evaluations"] == 40 * 15 + 1 + _leg_sweep_evaluations(body.dofs)
-                   for f in frames)
+        assert all(f["evaluations"] == 40 * 15 + 1 for f in frames)
     assert np.median(errs) < 0.8 * static, (errs, static)
 
 
@@ -681,4 +664,4 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
     start[d.index("r_shoulder_rz")] = 1.2  # hanging
 
     _check_sweep(tmp_path / "ds", body, ctx, start, J[wrist], wrist, "arm_sweep", "r_shoulder",
-                 mv.arm_grid(d, 10), far=0.4, near=0.15, leg_sweep=0)
+                 mv.arm_grid(d, 10), far=0.4, near=0.15)

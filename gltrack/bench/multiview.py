@@ -65,21 +65,16 @@ PAPER_APF = (800, 10)
 PAPER_APF_SECONDS = 5.0
 
 
-def method_configs(budget: int, n_partitions: int = 10, sweeps: bool = False) -> dict:
-    """Tracker runs at equal evaluation budget: name -> (method, options).
-
-    ``sweeps``: keep ``hps``'s default per-frame leg sweep (802 evaluations a frame on top of
-    the budget; the honest protocol: what a user gets). Off for the samplers' comparison, which
-    gives every method the same evaluations."""
+def method_configs(budget: int, n_partitions: int = 10) -> dict:
+    """Tracker runs at equal evaluation budget: name -> (method, options)."""
     b = int(budget)
     hps = max(6, b // HPS_EVALS_PER_PARTICLE)
-    off = {} if sweeps else {"leg_sweep": 0}
     return {
         "sir": ("sir", {"particles": b}),
         "apf": ("apf", {"particles": max(2, b // 10), "layers": 10}),
         "ps": ("ps", {"particles": max(2, b // n_partitions)}),
-        "hps": ("hps", {"particles": hps, **off}),
-        "hps/4": ("hps", {"particles": max(6, hps // 4), **off}),
+        "hps": ("hps", {"particles": hps}),
+        "hps/4": ("hps", {"particles": max(6, hps // 4)}),
     }
 
 
@@ -224,7 +219,7 @@ def _bench_honest(shared, bvh, src, work, budget, ctx, seed) -> dict:
     from gltrack.data.dataset import Dataset
 
     ds = synth(bvh, work / "honest_ds", src, seed=seed, extra=HONEST.synth_flags(shared))
-    method, opts = method_configs(budget, sweeps=True)["hps"]
+    method, opts = method_configs(budget)["hps"]
     out = {"hps": _run(ds, method, opts, work / "honest_hps", "full", None, ctx, seed,
                        protocol=HONEST)}
     out["body_error"] = body_error_of(work / "honest_hps", ds)

@@ -218,10 +218,19 @@ class MultiviewOptions(Options):
         a frame against 3001; on the honest bench (hps, MakeHuman subject, seed 0) walk 53.9
         against 54.4 mm, salsa 82.9 against 86.0 mm (wrists better, elbows worse). Not enough
         to pay for 27-40 % more evaluations by default
-    leg_sweep : 0 (off; the default, except for ``hps``: :class:`HpsOptions`) or points per
-        swing axis of the leg sweep: as ``arm_sweep``, for each leg's hip flexion and abduction
-        and the knee's flexion (10: 2 x 401 more evaluations a frame). For a raised or swinging
-        leg that the particles leave hanging beside the standing one
+    leg_sweep : 0 (default, off) or points per swing axis of the leg sweep: as ``arm_sweep``,
+        for each leg's hip flexion and abduction and the knee's flexion (10: 2 x 401 more
+        evaluations a frame). For a raised or swinging leg that the particles leave hanging
+        beside the standing one. Measured (2026-11-27, llvmpipe, ``hps``): on six honest
+        MakeHuman datasets (walk, hop, salsa at two synthesis seeds; 15 frames, each with its
+        estimated body and start kept fixed, 133 particles, tracking seeds 0 / 1) the mean
+        joint error fell by 6.9 mm on average over the 12 pairs and rose in none (hop 121.9 /
+        131.0 -> 88.4 / 90.1 mm; 240 particles without it, the same evaluations: 119.8 /
+        115.0); but on the Pose2Sim take (all 100 frames) it swapped legs back and forth in
+        the bent-over frames: mean IoU per camera 0.547 / 0.606 / 0.624 / 0.603 against 0.553
+        / 0.613 / 0.624 / 0.599, joint jitter 50.7 against 38.8 mm/frame^2 (95th percentile
+        108.6 against 65.3), 1.16x the time; and the honest bench's 5-frame hop came out 3.4
+        mm worse. Not a default while it makes a real track jumpier
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -358,20 +367,12 @@ class HpsOptions(AnnealedOptions):
         +0.7 +- 0.9 mm (own-mesh subject, 5 frames of walk, hop and salsa, seeds 0-2) and
         +0.7 +- 3.7 mm (MakeHuman subject, 15 frames of walk and salsa, seeds 0-7), worse
         in 16 of the 25 pairs: within the noise, but leaning the wrong way for a default
-    leg_sweep : as :attr:`MultiviewOptions.leg_sweep`, but on (10) by default for ``hps``.
-        Measured (2026-11-27, llvmpipe; the honest bench's MakeHuman datasets of walk, hop and
-        salsa, 15 frames, each with its estimated body and automatic start kept fixed, 133
-        particles, tracking seeds 0 / 1; mean joint error): hop 121.9 / 131.0 -> 88.4 / 90.1
-        mm (240 particles without the sweep, the same evaluations: 119.8 / 115.0), walk and
-        salsa the same tracks to the digit (no swept leg won there); on the Pose2Sim take see
-        the README. 802 more evaluations a frame (3001 -> 3803 at the default 200 particles)
     """
 
     limb_layers: int = 2
     joint_layers: int = 4
     min_spread: float = 0.0
     fine_layers: int = 0
-    leg_sweep: int = 10
 
     def problems(self):
         return super().problems() + [*at_least(self, 1, "limb_layers", "joint_layers"),
