@@ -162,11 +162,10 @@ def test_synth_refuses_what_does_not_fit_in_memory(tmp_path, monkeypatch, capsys
     assert "64 cameras" in _one_line(capsys)
 
 
-def _clip(tmp_path):
+def _clip(tmp_path, T=240, name="clip.bvh"):
     from test_synth import _write_clip
 
-    # long enough that the synth cannot finish between its first frame on disk and the signal
-    return _write_clip(tmp_path / "clip.bvh", T=240)
+    return _write_clip(tmp_path / name, T=T)
 
 
 def _default_sigint():
@@ -175,6 +174,8 @@ def _default_sigint():
     # which is what this test is about (the 30- and 240-frame runs that "finished despite the
     # signal" were test suites started in the background).
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    # and a signal mask inherited blocked would hold both signals back until the synth is done
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
 def _synth_proc(clip, out):
@@ -196,21 +197,27 @@ def _wait_for_partial(proc, parent, name):
 
 
 def test_synth_interrupted_or_killed_leaves_no_partial_folder(tmp_path):
-    clip = _clip(tmp_path)
+    # The signalled runs get a clip far longer than they live (2400 frames, about a minute at
+    # full speed): with the 240-frame clip, a test process starved of CPU on a loaded machine
+    # could see the first frame only when the synth was nearly done, and signal a run that had
+    # already finished (it exited 0 once in a full suite).
+    long_clip = _clip(tmp_path, T=2400, name="long.bvh")
     for sig in (signal.SIGINT, signal.SIGTERM):
-        proc = _synth_proc(clip, tmp_path / "out" / "ds")
-        _wait_for_partial(proc, tmp_path / "out", "ds")
+        proc = _synth_proc(long_clip, tmp_path / "out" / "ds")
+        parts = _wait_for_partial(proc, tmp_path / "out", "ds")
+        written = len(list(parts[0].glob("cam0/*.png")))
         proc.send_signal(sig)
-        assert proc.wait(timeout=60) != 0
+        rc = proc.wait(timeout=60)
+        assert rc != 0, (sig, written, proc.stderr.read().decode())
         assert not (tmp_path / "out").exists(), (sig, list((tmp_path / "out").iterdir()))
     # kill -9 cannot be caught: the next synth of the same folder removes what it left
     (tmp_path / "out").mkdir()
-    proc = _synth_proc(clip, tmp_path / "out" / "ds")
+    proc = _synth_proc(long_clip, tmp_path / "out" / "ds")
     left = _wait_for_partial(proc, tmp_path / "out", "ds")
     proc.kill()
     proc.wait()
     assert all(p.exists() for p in left)
-    proc = _synth_proc(clip, tmp_path / "out" / "ds")
+    proc = _synth_proc(_clip(tmp_path), tmp_path / "out" / "ds")
     assert proc.wait(timeout=300) == 0, proc.stderr.read().decode()
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["ds"]
 
