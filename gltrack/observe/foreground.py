@@ -54,6 +54,11 @@ on their own (``cues=``):
    of every frame) than under those of a ring of scene around the column
    (:meth:`SequenceForeground.support_colours`); a pixel is kept where the visual hull of the
    frame's masks inside the column's box (:meth:`SequenceForeground.consistent`) reprojects.
+   A support pixel in the column's lower half also keeps its 2-D component when that does not
+   touch the hull's reprojection: a bare standing shank is cut off from the body by still
+   clothes (the Pose2Sim take's dark shorts against the dark force plate) that neither the
+   temporal background nor the colour test takes; in the upper half, bits of the scene that
+   the column's carve let through (the legs of the person behind) go.
 
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
 masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
@@ -1088,6 +1093,8 @@ class SequenceForeground:
         hullm = [np.zeros_like(m) for m in cand]
         sils = [np.zeros_like(m) for m in cand]
         columns = [np.zeros_like(m) for m in cand]
+        # the column's lower half (up to about the knees), where a support stands on the floor
+        lows = [np.zeros_like(m) for m in cand]
         column_boxes = {}
         depths = np.full((T, C), np.nan)
         for t in range(T):
@@ -1101,12 +1108,17 @@ class SequenceForeground:
                 if col is not None:
                     column_boxes[t] = np.concatenate([col[0].min(axis=0),
                                                       (col[0] + col[1][:, None]).max(axis=0)])
+                    n_up = np.asarray(self.floor[0], float)
+                    rise = (col[0] + 0.5 * col[1][:, None]) @ n_up - float(self.floor[1])
+                    low = rise < 0.5 * rise.max()
                     for c in range(C):
                         with np.errstate(invalid="ignore", over="ignore"):
                             front, lo_px, hi_px = pixel_boxes(self.cameras[c], col[0], col[1],
                                                               True)
                         columns[c][t] = fill_boxes(sils[c][t].shape, lo_px[front],
                                                    hi_px[front])
+                        lows[c][t] = fill_boxes(sils[c][t].shape, lo_px[front & low],
+                                                hi_px[front & low])
                 for c in range(C):
                     sils[c][t] = sil[c]
                     # the hull is carved from shadow-free candidates; a pixel the shadow test
@@ -1155,15 +1167,17 @@ class SequenceForeground:
                         support[c][t] = s
         stages["grabcut"] = [m.copy() for m in out]
         kept = [np.zeros_like(m) for m in cand]
+        supported = [np.zeros_like(m) for m in cand]
         for t, box in column_boxes.items():
             # a support pixel must be multi-view consistent: carved with the other views'
             # masks in the column's box (floor and mats a camera's colours took go)
             keep = self.consistent([out[c][t] | support[c][t] for c in range(C)], box)
             for c in range(C):
                 kept[c][t] = keep[c]
-                out[c][t] |= support[c][t] & keep[c]
+                supported[c][t] = support[c][t] & keep[c]
+                out[c][t] |= supported[c][t]
         if column_boxes:
-            stages["support"] = [s & k for s, k in zip(support, kept)]
+            stages["support"] = supported
         if "shadows" in cues:
             for c in range(C):
                 out[c] &= ~(shadow[c] & ~sils[c])
@@ -1172,9 +1186,12 @@ class SequenceForeground:
             for t in range(T):
                 m = clean_mask(out[c][t], p.morph_size, h_min[c])
                 if "hull" in cues and m.any():
-                    # keep only 2-D components that touch the hull's reprojection
+                    # keep only 2-D components that touch the hull's reprojection, or hold
+                    # support pixels in the column's lower half: a standing shank, cut off
+                    # from the body by still clothes that the colour test did not take (and
+                    # not a bit of the scene higher up that the column's carve let through)
                     n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
-                    touch = np.unique(lab[m & sils[c][t]])
+                    touch = np.unique(lab[m & (sils[c][t] | (supported[c][t] & lows[c][t]))])
                     m = np.isin(lab, touch[touch > 0])
                 out[c][t] = m
         return out, stages, bgs, knowns
