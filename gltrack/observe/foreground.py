@@ -1166,14 +1166,12 @@ class SequenceForeground:
                     if s is not None:
                         support[c][t] = s
         stages["grabcut"] = [m.copy() for m in out]
-        kept = [np.zeros_like(m) for m in cand]
         supported = [np.zeros_like(m) for m in cand]
         for t, box in column_boxes.items():
             # a support pixel must be multi-view consistent: carved with the other views'
             # masks in the column's box (floor and mats a camera's colours took go)
             keep = self.consistent([out[c][t] | support[c][t] for c in range(C)], box)
             for c in range(C):
-                kept[c][t] = keep[c]
                 supported[c][t] = support[c][t] & keep[c]
                 out[c][t] |= supported[c][t]
         if column_boxes:
