@@ -665,3 +665,59 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
 
     _check_sweep(tmp_path / "ds", body, ctx, start, J[wrist], wrist, "arm_sweep", "r_shoulder",
                  mv.arm_grid(d, 10), far=0.4, near=0.15)
+
+
+def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path, caplog):
+    """``ground_contact``: with the dataset's floor recorded, a pose lifted 0.3 m is weighted
+    as if its silhouette error were ``area * (excess / GROUND_SCALE)`` pixels larger (its lower
+    ankle's height over the floor beyond the allowance), a pose standing within the allowance
+    as before; a dataset that records no floor leaves the prior off and says so."""
+    import json
+    import shutil
+
+    from gltrack.data.dataset import Dataset
+    from gltrack.sample import bandouch_weights
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = dataset
+    ankles = [body.skeleton.index(n) for n in ("l_ankle", "r_ankle")]
+    lowest = body.joints(P[3][None])[0, ankles, 1].min()
+    floored = tmp_path / "ds"
+    shutil.copytree(path, floored)
+    meta = json.loads((floored / "meta.json").read_text())
+    meta["world"] = {"up": "y", "R_user_from_internal": np.eye(3).tolist(),
+                     "floor": float(lowest - 0.05)}  # the true pose 5 cm above it
+    (floored / "meta.json").write_text(json.dumps(meta))
+    # the true pose, lifted 0.3 m, shifted 0.2 m sideways (the lifted one explains the
+    # silhouettes better: 707 against 915 pixels of XOR when this was written)
+    X = np.repeat(P[3][None], 3, axis=0)
+    X[1, body.dofs.index("pelvis_ty")] += 0.3
+    X[2, body.dofs.index("pelvis_tx")] += 0.2
+
+    def weigh(ds_path, contact):
+        tr = HPSTracker(Dataset.open(ds_path), body, ctx,
+                        HpsOptions(particles=12, ground_contact=contact), np.random.default_rng(0))
+        try:
+            tr.start(0, P[0])
+            tr.observe(3)
+            return tr.weights(X), tr.scores(X), tr.area, tr.floor
+        finally:
+            tr.close()
+
+    w_off, (e_s, c_a), area, floor = weigh(floored, 0.0)
+    assert floor is None
+    w_on, (e_s2, c_a2), area2, floor = weigh(floored, 0.1)
+    assert floor == pytest.approx(lowest - 0.05)
+    np.testing.assert_array_equal(e_s2, e_s)  # the silhouette error itself is unchanged
+    excess = np.array([0.0, 0.3 + 0.05 - 0.1, 0.0])
+    want = bandouch_weights(e_s + area2 * excess / HPSTracker.GROUND_SCALE, c_a, 0.7, 0.3)
+    np.testing.assert_allclose(w_on, want, rtol=1e-9)
+    assert np.argmax(w_off) == np.argmax(w_on) == 0
+    assert w_off[1] > w_off[2] and w_on[1] < w_on[2], (w_off, w_on)  # the floating one drops
+    # no floor recorded: off, with a warning that names the dataset
+    with caplog.at_level("WARNING"):
+        w_none, _, _, floor = weigh(path, 0.1)
+    assert floor is None and "records no floor" in caplog.text and str(path) in caplog.text
+    np.testing.assert_array_equal(w_none, w_off)
+    with pytest.raises(ValueError, match="ground_contact"):
+        HpsOptions(ground_contact=-0.1).validate()
