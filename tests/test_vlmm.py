@@ -307,6 +307,7 @@ def test_behaviour_save_load_roundtrip(synth_model, tmp_path):
     m2 = BehaviourModel.load(path)
     assert m2.report() == m.report()
     assert m2.dof_names == ("a", "b", "c", "d")
+    np.testing.assert_array_equal(m2.vel_rho, m.vel_rho)
     X = m.features(params[:50])
     s = np.zeros(50, dtype=int)
     a = m.predict(np.random.default_rng(4), X, s)
@@ -340,6 +341,7 @@ def test_behaviour_load_rejects_bad_files(synth_model, tmp_path):
         "meta.fps": dict(meta=np.array(json.dumps(dict(meta, fps=-1)))),
         "meta.format": dict(meta=np.array(json.dumps(dict(meta, format="other")))),
         "meta.vlmm": dict(meta=np.array(json.dumps(dict(meta, vlmm={"states": "x"})))),
+        "vel_rho": dict(vel_rho=np.full(4, 1.5)),
     }
     for field, change in cases.items():
         bad = tmp_path / f"bad_{field}.npz"
@@ -423,3 +425,102 @@ def test_vlmm_options_lam_dx():
     assert VlmmOptions.from_dict({"model": "m.npz", "lam_dx": 0}).lam_dx == 0.0
     with pytest.raises(ValueError, match="lam_dx = -0.1"):
         VlmmOptions.from_dict({"model": "m.npz", "lam_dx": -0.1})
+
+
+def _ar1_velocities(rng, rho, n=4000, a=3, sd=2.0, mean=(1.0, -0.5, 0.0)):
+    """(n, 2a) feature vectors whose velocities are a stationary AR(1) about ``mean``."""
+    v = np.empty((n, a))
+    v[0] = mean + sd * rng.standard_normal(a)
+    for t in range(1, n):
+        v[t] = mean + rho * (v[t - 1] - mean) + sd * np.sqrt(1 - rho ** 2) * rng.standard_normal(a)
+    return np.concatenate([np.cumsum(v, axis=0) / 30.0, v], axis=1)
+
+
+def test_velocity_memory_recovers_the_autocorrelation():
+    """The learnt rho is the lag-1 autocorrelation about each cluster's mean velocity, only
+    over frames that stay in one cluster."""
+    from gltrack.motion.behaviour import velocity_memory
+
+    rng = np.random.default_rng(0)
+    mean = np.array([[1.0, -0.5, 0.0]])
+    for rho in (0.3, 0.8):
+        X = _ar1_velocities(rng, rho)
+        got = velocity_memory([X], [np.zeros(len(X), dtype=np.int64)], mean)
+        np.testing.assert_allclose(got, rho, atol=0.05)
+    # a cluster change between two frames is no evidence of memory: alternating labels with
+    # two clusters of very different means would otherwise give a spurious correlation
+    X = _ar1_velocities(rng, 0.0)
+    X[1::2, 3:] += 10.0
+    labels = np.tile([0, 1], len(X) // 2)
+    two = np.array([[1.0, -0.5, 0.0], [11.0, 9.5, 10.0]])
+    np.testing.assert_array_equal(velocity_memory([X], [labels], two), 0.0)
+    assert np.all(velocity_memory([X[:1]], [labels[:1]], two) == 0.0)  # no pair: no memory
+
+
+def test_ar1_velocities_stay_in_the_cluster():
+    """Iterated inside one cluster, the paper's random walk spreads the velocities without
+    bound; the learnt autoregression keeps them at the cluster's own spread and pulls a
+    velocity far from the cluster's mean back towards it."""
+    X = _ar1_velocities(np.random.default_rng(1), 0.5, n=3000, mean=(0.0, 0.0, 0.0))
+    params = np.zeros((len(X), 9))
+    params[:, 6:] = X[:, :3]
+    m = BehaviourModel.fit(params, 30.0, np.random.default_rng(2), k_max=1, augment=False,
+                           holdout=0)
+    assert m.gmm.n_components == 1  # no cluster jumps: the local dynamics alone
+    assert np.all((m.vel_rho > 0.4) & (m.vel_rho < 0.95)), m.vel_rho
+    n, a = 2000, m.n_angles
+    sd = np.sqrt(np.diagonal(m.gmm.covs[0])[a:])
+    state = np.full(n, m.state_for([0]))
+    spread = {}
+    for velocity in ("walk", "ar1"):
+        Xp, rng = np.repeat(m.gmm.means[:1], n, axis=0), np.random.default_rng(5)
+        for _ in range(60):
+            Xp, _s = m.predict(rng, Xp, state, lam=0.5, velocity=velocity)
+        spread[velocity] = np.std(Xp[:, a:], axis=0) / sd
+    assert np.all(spread["walk"] > 2.5), spread  # 0.5 * sqrt(60) = 3.9 cluster sds
+    assert np.all((spread["ar1"] > 0.85) & (spread["ar1"] < 1.15)), spread
+    Xp = np.repeat(m.gmm.means[:1], n, axis=0)
+    Xp[:, a:] += 5 * sd
+    Xn, _s = m.predict(np.random.default_rng(6), Xp, state, lam=0.0, velocity="ar1")
+    off = (Xn[:, a:] - m.gmm.means[0, a:]) / sd
+    np.testing.assert_allclose(np.mean(off, axis=0), 5 * m.vel_rho, atol=0.1)
+    np.testing.assert_allclose(np.std(off, axis=0), np.sqrt(1 - m.vel_rho ** 2), rtol=0.1)
+
+
+def test_velocity_option_and_models_without_memory(synth_model, tmp_path, caplog):
+    """A model written before vel_rho existed loads; predict refuses "ar1" with it and the
+    prior falls back to the walk with a warning. Bad option values are errors."""
+    import logging
+
+    from dataclasses import replace
+
+    from gltrack.body.dofs import make_dofs
+    from gltrack.body.skeleton import default_skeleton
+    from gltrack.motion.vlmm_prior import VlmmPrior
+    from gltrack.track.vlmm import VlmmOptions
+
+    params, m = synth_model
+    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
+    m.save(good)
+    _rewrite(good, old, vel_rho=None)
+    m_old = BehaviourModel.load(old)
+    assert m_old.vel_rho is None and m_old.report()["velocity_rho_median"] is None
+    X = m.features(params[:20])
+    s = np.zeros(20, dtype=int)
+    with pytest.raises(ValueError, match="velocity memory"):
+        m_old.predict(np.random.default_rng(0), X, s, velocity="ar1")
+    with pytest.raises(ValueError, match="'walk' or 'ar1'"):
+        m.predict(np.random.default_rng(0), X, s, velocity="other")
+    # the two velocity models give different predictions from the same draws
+    a = m.predict(np.random.default_rng(0), X, s, velocity="walk")[0]
+    b = m.predict(np.random.default_rng(0), X, s, velocity="ar1")[0]
+    assert not np.allclose(a, b)
+    assert VlmmOptions(model="m.npz").validate().velocity == "ar1"
+    with pytest.raises(ValueError, match="velocity"):
+        VlmmOptions.from_dict({"model": "m.npz", "velocity": "fast"})
+    dofs = make_dofs(default_skeleton(), "25")
+    names = tuple(dofs.names[6:6 + m.n_angles])
+    with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
+        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).velocity == "walk"
+    assert "velocity memory" in caplog.text
+    assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).velocity == "ar1"

@@ -98,6 +98,9 @@ def format_report(rep: dict, clips: list) -> str:
              f"{ent(rep['train_entropy'])}",
              f"held-out:         {rep['heldout_frames'] or 0} frames, entropy "
              f"{ent(rep['heldout_entropy'])}"]
+    if rep.get("velocity_rho_median") is not None:
+        lines.append(f"velocity memory:  lag-1 autocorrelation {rep['velocity_rho_median']:.2f} "
+                     "(median over the angles, within a cluster)")
     tr, ho = rep["train_entropy"], rep["heldout_entropy"]
     if ho is not None and tr is not None and ho > 2.0 * tr + 0.25:
         lines.append("note:             held-out entropy is far above the training entropy: the "

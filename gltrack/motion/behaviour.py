@@ -17,8 +17,15 @@ Prediction (section 5) for particles carrying a feature vector and a VLMM state:
 
   (velocities are in radians per second here, hence the ``dt``); ``sqrt`` is the symmetric
   square root by eigendecomposition. The paper attenuates both noises by one coefficient
-  (``lam_dx = lam``, the default); :class:`gltrack.motion.vlmm_prior.VlmmPrior` has what
-  ``lam_dx = 0`` does to tracking;
+  (``lam_dx = lam``); :class:`gltrack.motion.vlmm_prior.VlmmPrior` has what ``lam_dx = 0``
+  does to tracking. That velocity is a random walk: its spread grows without bound while a
+  particle stays in its cluster, and the likelihood, which sees poses, cannot select it.
+  ``velocity="ar1"`` replaces the walk with the velocities' own learnt memory: a stationary
+  first-order autoregression about the cluster's mean velocity,
+  ``dx_{t+1} = mu_dx + rho * (dx_t - mu_dx) + sqrt(1 - rho^2) * n_dx``, whose spread stays the
+  cluster's. ``rho`` (one per angle, :attr:`BehaviourModel.vel_rho`) is the lag-1
+  autocorrelation of the training velocities about their cluster's mean, over consecutive
+  frames of one cluster (0.47-0.87 on the CMU salsa takes at 30 fps);
 * otherwise the particle is re-sampled from the new cluster's Gaussian.
 
 The six root parameters are not modelled (the paper propagates them with plain Gaussian
@@ -64,6 +71,9 @@ class BehaviourModel:
     n_angles : int, number of joint angles (D - 6 of the DOF preset).
     dof_names : tuple of str, names of the modelled angles (may be empty).
     info : dict, training figures (see :meth:`report`).
+    vel_rho : (n_angles,) float array in [0, 1) or None, the velocities' learnt lag-1
+        autocorrelation within a cluster (:func:`velocity_memory`; None in models written
+        before it was learnt: ``predict(velocity="ar1")`` then refuses).
     """
 
     gmm: GaussianMixture
@@ -72,6 +82,7 @@ class BehaviourModel:
     n_angles: int
     dof_names: tuple = ()
     info: dict = field(default_factory=dict)
+    vel_rho: np.ndarray | None = None
 
     def __post_init__(self):
         if self.gmm.dim != 2 * self.n_angles:
@@ -84,6 +95,11 @@ class BehaviourModel:
         if self.dof_names and len(self.dof_names) != self.n_angles:
             raise ValueError(f"{len(self.dof_names)} dof_names for {self.n_angles} angles")
         self.dof_names = tuple(str(n) for n in self.dof_names)
+        if self.vel_rho is not None:
+            r = np.asarray(self.vel_rho, dtype=np.float64)
+            if r.shape != (self.n_angles,) or not np.all((r >= 0) & (r < 1)):
+                raise ValueError(f"vel_rho must be {self.n_angles} values in [0, 1)")
+            self.vel_rho = r
 
     # ------------------------------------------------------------------ learning
     @classmethod
@@ -143,12 +159,14 @@ class BehaviourModel:
         g = min(1e-3, 0.1 / k) if gamma is None else float(gamma)
         vlmm = Vlmm.fit(labels, k, max_memory=max_memory, epsilon=epsilon,
                         min_count=min_count, gamma=g)
-        info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels))}
+        rho = velocity_memory(train_feats, labels, gmm.means[:, n_angles:])
+        info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels)),
+                "velocity_rho_median": float(np.median(rho))}
         if test:
             test_labels = [gmm.predict(feat.motion_features(s, fps)) for s in test]
             info["heldout_frames"] = int(sum(len(t) for t in test_labels))
             info["heldout_entropy"] = float(vlmm.entropy(test_labels))
-        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info)
+        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info, rho)
         log.info("behaviour model: %s", model.report())
         return model
 
@@ -194,16 +212,19 @@ class BehaviourModel:
         Returns
         -------
         dict with ``n_clusters``, ``n_states``, ``max_memory_used`` (longest state),
-        ``feature_dim``, ``fps``, ``train_frames``, ``train_entropy`` and, when a held-out set
-        was used, ``heldout_frames`` and ``heldout_entropy`` (else None). Entropies are model
-        entropies (eq. 2) in bits per frame.
+        ``feature_dim``, ``fps``, ``train_frames``, ``train_entropy``, when a held-out set
+        was used, ``heldout_frames`` and ``heldout_entropy`` (else None), and
+        ``velocity_rho_median``, the median of :attr:`vel_rho` (None without it). Entropies
+        are model entropies (eq. 2) in bits per frame.
         """
         return {"n_clusters": self.gmm.n_components, "n_states": self.vlmm.n_states,
                 "max_memory_used": int(self.vlmm.depth.max()), "feature_dim": self.gmm.dim,
                 "fps": self.fps, "train_frames": self.info.get("train_frames"),
                 "train_entropy": self.info.get("train_entropy"),
                 "heldout_frames": self.info.get("heldout_frames"),
-                "heldout_entropy": self.info.get("heldout_entropy")}
+                "heldout_entropy": self.info.get("heldout_entropy"),
+                "velocity_rho_median": (None if self.vel_rho is None
+                                        else float(np.median(self.vel_rho)))}
 
     # ------------------------------------------------------------------ use
     def features(self, params) -> np.ndarray:
@@ -233,8 +254,8 @@ class BehaviourModel:
         return lp - logsumexp(lp, axis=1, keepdims=True)
 
     def predict(self, rng: np.random.Generator, X, states, lam: float = 0.5,
-                dt: float | None = None, lam_dx: float | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
+                dt: float | None = None, lam_dx: float | None = None,
+                velocity: str = "walk") -> tuple[np.ndarray, np.ndarray]:
         """Propagate particles one frame (eqs. 3 and 4, see module docstring).
 
         Parameters
@@ -246,8 +267,10 @@ class BehaviourModel:
         lam : float, noise attenuation of the local dynamics (the angles' noise, and the
             velocities' too unless ``lam_dx`` is given).
         dt : float or None, time step in seconds (None: 1 / fps).
-        lam_dx : float or None, attenuation of the velocities' noise (None: ``lam``, the
-            paper's single coefficient).
+        lam_dx : float or None, attenuation of the velocities' noise in the random walk
+            (None: ``lam``, the paper's single coefficient).
+        velocity : "walk" (the paper's eq. 4) or "ar1" (the learnt autoregression about the
+            cluster's mean velocity, see the module docstring; needs :attr:`vel_rho`).
 
         Returns
         -------
@@ -262,6 +285,11 @@ class BehaviourModel:
             raise ValueError(f"{states.shape[0]} states for {X.shape[0]} particles")
         if np.any((states < 0) | (states >= self.vlmm.n_states)):
             raise ValueError("states out of range")
+        if velocity not in ("walk", "ar1"):
+            raise ValueError(f"velocity must be 'walk' or 'ar1', got {velocity!r}")
+        if velocity == "ar1" and self.vel_rho is None:
+            raise ValueError("this behaviour model has no learnt velocity memory (vel_rho): "
+                             "relearn it with gltrack learn, or use velocity 'walk'")
         dt = 1.0 / self.fps if dt is None else float(dt)
         lam_dx = lam if lam_dx is None else float(lam_dx)
         n, a = X.shape[0], self.n_angles
@@ -281,7 +309,11 @@ class BehaviourModel:
         noise = np.einsum("nij,nj->ni", roots[nxt], z)
 
         out = np.empty_like(X)
-        dx_new = X[same, a:] + lam_dx * noise[same, a:]
+        if velocity == "walk":
+            dx_new = X[same, a:] + lam_dx * noise[same, a:]
+        else:
+            mu, rho = self.gmm.means[nxt[same], a:], self.vel_rho
+            dx_new = mu + rho * (X[same, a:] - mu) + np.sqrt(1.0 - rho ** 2) * noise[same, a:]
         out[same, a:] = dx_new
         out[same, :a] = X[same, :a] + dx_new * dt + lam * noise[same, :a]
         jump = ~same
@@ -295,9 +327,11 @@ class BehaviourModel:
                 "dof_names": list(self.dof_names), "vlmm": self.vlmm.tree_dict(),
                 "info": self.info}
         with open(path, "wb") as f:
+            extra = {} if self.vel_rho is None else {"vel_rho": self.vel_rho}
             np.savez(f, gmm_weights=self.gmm.weights, gmm_means=self.gmm.means,
                      gmm_covs=self.gmm.covs, gmm_cost_path=self.gmm.cost_path,
-                     vlmm_next_dist=self.vlmm.next_dist, meta=np.array(json.dumps(meta)))
+                     vlmm_next_dist=self.vlmm.next_dist, meta=np.array(json.dumps(meta)),
+                     **extra)
 
     @classmethod
     def load(cls, path) -> "BehaviourModel":
@@ -344,7 +378,44 @@ class BehaviourModel:
         info = meta.get("info", {})
         if not isinstance(info, dict):
             raise ValueError(f"{path}: field 'meta.info' must be an object")
+        rho = arrays.get("vel_rho")  # optional: models written before it was learnt lack it
+        if rho is not None and (rho.dtype.kind != "f" or rho.shape != (n_angles,)
+                                or not np.all((rho >= 0) & (rho < 1))):
+            raise ValueError(f"{path}: field 'vel_rho' must be {n_angles} floats in [0, 1)")
         try:
-            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info)
+            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info, rho)
         except ValueError as e:
             raise ValueError(f"{path}: field 'meta': {e}") from None
+
+
+def velocity_memory(features, labels, mean_velocities) -> np.ndarray:
+    """The velocities' lag-1 autocorrelation about their cluster's mean, per angle.
+
+    Parameters
+    ----------
+    features : list of (T_i, 2 * a) arrays, feature vectors of the training sequences
+        (angles in radians, then velocities in radians/second).
+    labels : list of (T_i,) int arrays, the cluster of every frame.
+    mean_velocities : (K, a) array, each cluster's mean velocity.
+
+    Returns
+    -------
+    (a,) float64 array in [0, 0.99]: ``rho`` of the local dynamics' autoregression, the least
+    squares slope of ``dx_{t+1} - mu`` on ``dx_t - mu`` over consecutive frames that share a
+    cluster (``mu`` that cluster's mean velocity); 0 where no two such frames exist.
+    """
+    mv = np.asarray(mean_velocities, dtype=np.float64)
+    a = mv.shape[1]
+    num, den = np.zeros(a), np.zeros(a)
+    for X, k in zip(features, labels):
+        X, k = np.asarray(X, dtype=np.float64), np.asarray(k, dtype=np.int64)
+        if len(X) < 2:
+            continue
+        same = k[1:] == k[:-1]
+        mu = mv[k[:-1][same]]
+        u0, u1 = X[:-1][same, a:] - mu, X[1:][same, a:] - mu
+        num += np.sum(u0 * u1, axis=0)
+        den += np.sum(u0 * u0, axis=0)
+    rho = np.divide(num, den, out=np.zeros(a), where=den > 0)
+    # a negative or (near) unit correlation is not a memory the filter should keep
+    return np.clip(rho, 0.0, 0.99)

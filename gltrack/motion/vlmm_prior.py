@@ -42,11 +42,18 @@ class VlmmPrior:
     dofs : gltrack.body.dofs.DofSet of the tracked body (the model's angles are found by name)
     fps : float, frame rate of the tracked data
     lam : float, attenuation of the angles' noise in the local dynamics (eq. 4)
-    lam_dx : float or None, attenuation of the velocities' noise; None: ``lam`` (the paper's
-        eq. 4 has one coefficient). 0 keeps the velocity a particle got when it entered its
-        cluster instead of letting it random-walk: the likelihood sees poses, never
-        velocities, so a few hundred particles cannot select velocities and their noise
-        integrates into drift. With the blob fit from the true pose (``gltrack bench vlmm``
+    velocity : "ar1" (default): the velocities follow the model's learnt autoregression about
+        the cluster's mean velocity (:mod:`gltrack.motion.behaviour`), so their spread stays
+        the cluster's; "walk": the paper's eq. 4, a random walk with noise ``lam_dx``. With the
+        blob fit from the true pose (``gltrack bench vlmm`` protocol 1, 200 particles, 150
+        frames of cmu_60_10, 2 seeds) "ar1" gives 69-71 mm RMS against 85 with the walk and
+        75 with ``lam_dx = 0``; models learnt before ``vel_rho`` existed fall back to "walk"
+        with a warning
+    lam_dx : float or None, attenuation of the velocities' noise in the random walk; None:
+        ``lam`` (the paper's eq. 4 has one coefficient). 0 keeps the velocity a particle got
+        when it entered its cluster instead of letting it random-walk: the likelihood sees
+        poses, never velocities, so a few hundred particles cannot select velocities and their
+        noise integrates into drift. With the blob fit from the true pose (``gltrack bench vlmm``
         protocol 1, 200 particles, frames 0-89, 2 seeds) ``lam_dx = 0`` gives 59.6 mm RMS
         against 86.6 with the paper's 0.5 on cmu_60_10, and 41.0 against 78.1 on cmu_60_13 held
         out of training instead (0.25: 76.4; 0.86, the maximum-likelihood scale of the training
@@ -66,8 +73,16 @@ class VlmmPrior:
 
     def __init__(self, model: BehaviourModel, dofs, fps: float, *, lam: float = 0.5,
                  lam_dx: float | None = None, root_scale: float = 1.0,
-                 other_scale: float = 1.0):
+                 other_scale: float = 1.0, velocity: str = "ar1"):
         self.model, self.dofs, self.fps, self.lam = model, dofs, float(fps), float(lam)
+        if velocity not in ("ar1", "walk"):
+            raise ValueError(f"velocity must be 'ar1' or 'walk', got {velocity!r}")
+        if velocity == "ar1" and model.vel_rho is None:
+            log.warning("the behaviour model has no learnt velocity memory (it was learnt by an "
+                        "older gltrack): its velocities random-walk as in the paper; relearn it "
+                        "with gltrack learn for the learnt autoregression")
+            velocity = "walk"
+        self.velocity = velocity
         self.lam_dx = self.lam if lam_dx is None else float(lam_dx)
         if abs(model.fps - self.fps) > 1e-6 * self.fps:
             log.warning("behaviour model learnt at %g frames/s, data at %g: cluster transitions "
@@ -138,7 +153,7 @@ class VlmmPrior:
         X = self.X.copy()
         X[:, :self._a] = P[:, self.idx]  # a sampler may have moved the angles since
         Xn, sn = self.model.predict(rng, X, self.states, lam=self.lam, lam_dx=self.lam_dx,
-                                    dt=1.0 / self.fps)
+                                    dt=1.0 / self.fps, velocity=self.velocity)
         out = P.copy()
         out[:, self.idx] = Xn[:, :self._a]
         out[:, :6] += rng.standard_normal((len(P), 6)) * self.root_sigma
@@ -184,7 +199,8 @@ def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
     model : BehaviourModel or path to a model .npz written by ``gltrack learn``
     dofs : DofSet of the tracked body
     fps : float, frame rate of the tracked data
-    **kwargs : ``lam``, ``lam_dx``, ``root_scale``, ``other_scale`` of :class:`VlmmPrior`
+    **kwargs : ``lam``, ``lam_dx``, ``root_scale``, ``other_scale``, ``velocity`` of
+        :class:`VlmmPrior`
 
     The samplers of :mod:`gltrack.sample` take it directly:
     ``res = sampler.step(particles, weight_fn, rng, predict_fn=prior.predict)`` then

@@ -72,9 +72,11 @@ class VlmmOptions(BlobEvidenceOptions):
     evaluation : "blobs" (voxels + blob KL, the paper's) or "silhouette" (GPU XOR against the
         masks)
     lam : attenuation of the local dynamics' angle noise (eq. 4)
-    lam_dx : attenuation of its velocity noise (the paper uses ``lam`` for both; 0 keeps a
-        particle's cluster velocity: much better on the salsa takes, worse on coarse
-        clusters, see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`)
+    velocity : "ar1" (the velocities' learnt autoregression about the cluster's mean
+        velocity) or "walk" (the paper's eq. 4 random walk, noise ``lam_dx``); see
+        :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
+    lam_dx : attenuation of the random walk's velocity noise (``velocity = "walk"`` only; the
+        paper uses ``lam`` for both; 0 keeps a particle's cluster velocity)
     root_scale, other_scale : multipliers of the DOF sigmas diffusing the root and the angles
         the model does not cover
     survival : target effective sample size / N that sets the weight exponent
@@ -100,6 +102,7 @@ class VlmmOptions(BlobEvidenceOptions):
     particles: int = 200
     evaluation: str = "blobs"
     lam: float = 0.5
+    velocity: str = "ar1"
     lam_dx: float = 0.5
     root_scale: float = 1.0
     other_scale: float = 1.0
@@ -115,6 +118,7 @@ class VlmmOptions(BlobEvidenceOptions):
     def problems(self):
         bad = super().problems() + [
             *choice(self, "evaluation", EVALUATIONS), *choice(self, "estimate", ("best", "mean")),
+            *choice(self, "velocity", ("ar1", "walk")),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 0, "lam", "lam_dx", "root_scale", "other_scale", "lost_threshold",
@@ -138,7 +142,7 @@ class VlmmTracker(Tracker):
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
-                               lam_dx=opt.lam_dx, root_scale=opt.root_scale,
+                               lam_dx=opt.lam_dx, root_scale=opt.root_scale, velocity=opt.velocity,
                                other_scale=opt.other_scale)
         # the prior is the whole motion step: the filter adds no diffusion of its own
         self.sampler = SIRFilter(StateSpace.from_dofs(body.dofs, dataset.fps), alpha=opt.survival)
