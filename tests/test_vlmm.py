@@ -308,6 +308,7 @@ def test_behaviour_save_load_roundtrip(synth_model, tmp_path):
     assert m2.report() == m.report()
     assert m2.dof_names == ("a", "b", "c", "d")
     np.testing.assert_array_equal(m2.vel_rho, m.vel_rho)
+    np.testing.assert_array_equal(m2.root_dyn, m.root_dyn)
     X = m.features(params[:50])
     s = np.zeros(50, dtype=int)
     a = m.predict(np.random.default_rng(4), X, s)
@@ -342,6 +343,7 @@ def test_behaviour_load_rejects_bad_files(synth_model, tmp_path):
         "meta.format": dict(meta=np.array(json.dumps(dict(meta, format="other")))),
         "meta.vlmm": dict(meta=np.array(json.dumps(dict(meta, vlmm={"states": "x"})))),
         "vel_rho": dict(vel_rho=np.full(4, 1.5)),
+        "root_dynamics": dict(root_dynamics=np.ones((2, 5))),
     }
     for field, change in cases.items():
         bad = tmp_path / f"bad_{field}.npz"
@@ -524,3 +526,125 @@ def test_velocity_option_and_models_without_memory(synth_model, tmp_path, caplog
         assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).velocity == "walk"
     assert "velocity memory" in caplog.text
     assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).velocity == "ar1"
+
+
+def _root_walk(rng, sd, rho, n=20000, fps=30.0, n_angles=2):
+    """Params whose six root velocities follow AR(1)s with the given sds and memories."""
+    sd, rho = np.asarray(sd, float), np.asarray(rho, float)
+    v = np.zeros((n, 6))
+    v[0] = rng.standard_normal(6) * sd
+    for t in range(1, n):
+        v[t] = rho * v[t - 1] + np.sqrt(1 - rho ** 2) * sd * rng.standard_normal(6)
+    params = np.zeros((n + 1, 6 + n_angles))
+    params[1:, :6] = np.cumsum(v, axis=0) / fps
+    return params
+
+
+def test_root_dynamics_recovers_spread_and_memory():
+    """The learnt root dynamics are each root velocity's spread and lag-1 autocorrelation; the
+    two horizontal translations share theirs; rotations are unwrapped first."""
+    from gltrack.motion.behaviour import root_dynamics
+
+    sd = np.array([0.6, 0.2, 0.4, 3.0, 0.8, 1.0])
+    rho = np.array([0.9, 0.7, 0.9, 0.75, 0.3, 0.2])
+    params = _root_walk(np.random.default_rng(0), sd, rho)
+    got = root_dynamics(params, 30.0)
+    assert got.shape == (2, 6)
+    want_sd = sd.copy()
+    want_sd[[0, 2]] = np.sqrt((0.6 ** 2 + 0.4 ** 2) / 2)  # pooled floor directions
+    np.testing.assert_allclose(got[0], want_sd, rtol=0.06)
+    np.testing.assert_allclose(got[1], rho, atol=0.04)
+    assert got[0, 0] == got[0, 2] and got[1, 0] == got[1, 2]
+    # the heading wrapped into (-pi, pi] (as a BVH may store it) gives the same answer
+    wrapped = params.copy()
+    wrapped[:, 3] = np.angle(np.exp(1j * wrapped[:, 3]))
+    assert np.abs(wrapped[:, 3] - params[:, 3]).max() > 1.0  # the walk did wrap
+    np.testing.assert_allclose(root_dynamics(wrapped, 30.0), got, atol=1e-9)
+    # twice the frame rate: velocities per second keep their spread
+    np.testing.assert_allclose(root_dynamics(params, 60.0)[0], 2 * got[0])
+    np.testing.assert_array_equal(root_dynamics([params[:2]], 30.0), 0.0)  # too short
+    # the model learns them from the takes as recorded, not from the smoothed copies that
+    # augment its clusters (smoothing would invent memory)
+    part = params[:3000].copy()
+    part[:, 6:] = np.random.default_rng(1).normal(0, 0.1, (len(part), 2))
+    m = BehaviourModel.fit(part, 30.0, np.random.default_rng(2), k_max=1, holdout=0)
+    np.testing.assert_allclose(m.root_dyn, root_dynamics(part, 30.0))
+    with pytest.raises(ValueError, match="fps"):
+        root_dynamics(params, 0.0)
+
+
+def _prior_with_root(m, root_dyn, **kwargs):
+    from dataclasses import replace
+
+    from gltrack.body.dofs import make_dofs
+    from gltrack.body.skeleton import default_skeleton
+    from gltrack.motion.vlmm_prior import VlmmPrior
+
+    dofs = make_dofs(default_skeleton(), "25")
+    names = tuple(dofs.names[6:6 + m.n_angles])
+    return VlmmPrior(replace(m, dof_names=names, root_dyn=root_dyn), dofs, 30.0, **kwargs), dofs
+
+
+def test_prior_root_velocities_keep_their_memory(synth_model):
+    """With the learnt root dynamics a particle keeps turning the way it turned (its heading
+    velocity decays by rho a frame), the velocities keep the learnt spread over many frames,
+    and resampling carries every particle's velocity with it; "walk" diffuses as before."""
+    params, m = synth_model
+    root_dyn = np.array([[0.5, 0.2, 0.5, 3.0, 0.8, 1.0], [0.9, 0.7, 0.9, 0.75, 0.3, 0.2]])
+    prior, dofs = _prior_with_root(m, root_dyn)
+    assert prior.root == "ar1"
+    n = 4000
+    P = np.repeat(dofs.zero()[None], n, axis=0)
+    rng = np.random.default_rng(0)
+    prior.reset(P, rng)
+    prior.V[:] = 0.0
+    prior.V[:, 3] = 6.0  # every particle spins at 6 rad/s
+    out = prior.predict(P, rng)
+    turn = (out[:, 3] - P[:, 3]) * 30.0  # the heading's velocity over this frame, rad/s
+    assert abs(np.mean(turn) - 0.75 * 6.0) < 0.1, np.mean(turn)
+    assert abs(np.std(turn) - 3.0 * np.sqrt(1 - 0.75 ** 2)) < 0.1
+    for _ in range(40):
+        out = prior.predict(out, rng)
+    np.testing.assert_allclose(np.std(prior.V, axis=0), root_dyn[0], rtol=0.08)
+    # resampling: the rows' velocities move with them
+    idx = np.argsort(prior.V[:, 3])[-10:]
+    fast = prior.V[idx, 3].copy()
+    prior.select(idx)
+    np.testing.assert_array_equal(prior.V[:, 3], fast)
+    state = prior.get_state()
+    prior.V = None
+    prior.set_state(state)
+    np.testing.assert_array_equal(prior.V[:, 3], fast)
+    # recovery restarts roots at rest
+    prior.respawn(out[:10], np.zeros(10, dtype=int))
+    np.testing.assert_array_equal(prior.V, 0.0)
+    # the paper's diffusion: no memory, the DOF set's root sigmas
+    walk, _ = _prior_with_root(m, root_dyn, root="walk")
+    walk.reset(P, rng)
+    out = walk.predict(P, rng)
+    np.testing.assert_allclose(np.std(out[:, 3] - P[:, 3]), dofs.sigma_at(30.0)[3], rtol=0.08)
+    assert abs(np.mean(out[:, 3] - P[:, 3])) < 0.005
+
+
+def test_root_option_and_models_without_root_dynamics(synth_model, tmp_path, caplog):
+    """A model written before root_dyn existed loads and the prior falls back to the paper's
+    diffusion with a warning; the option is validated."""
+    import logging
+
+    from gltrack.track.vlmm import VlmmOptions
+
+    _, m = synth_model
+    assert m.root_dyn is not None and m.report()["heading_rate_sd"] == m.root_dyn[0, 3]
+    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
+    m.save(good)
+    _rewrite(good, old, root_dynamics=None)
+    m_old = BehaviourModel.load(old)
+    assert m_old.root_dyn is None and m_old.report()["root_speed_sd"] is None
+    with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
+        assert _prior_with_root(m_old, None)[0].root == "walk"
+    assert "root dynamics" in caplog.text
+    with pytest.raises(ValueError, match="root"):
+        _prior_with_root(m, m.root_dyn, root="spin")
+    assert VlmmOptions(model="m.npz").validate().root == "ar1"
+    with pytest.raises(ValueError, match="root"):
+        VlmmOptions.from_dict({"model": "m.npz", "root": "spin"})

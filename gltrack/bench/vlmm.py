@@ -98,9 +98,11 @@ def periodic_motion(body, n: int, fps: float = 30.0, phase: float = 0.0,
 #: protocol 1 (motion models only): (label, method, options), full and quick
 PROTOCOL1 = {
     False: [("vlmm_200", "vlmm", {"particles": 200}),
-            # ablations: the paper's velocity random walk (eq. 4), and the walk with the
-            # velocities kept inside a cluster (see VlmmPrior's velocity and lam_dx)
+            # ablations: the paper's velocity random walk (eq. 4), the walk with the
+            # velocities kept inside a cluster (see VlmmPrior's velocity and lam_dx), and the
+            # paper's root diffusion instead of the learnt root dynamics (VlmmPrior's root)
             ("vlmm_200_walk", "vlmm", {"particles": 200, "velocity": "walk"}),
+            ("vlmm_200_root_walk", "vlmm", {"particles": 200, "root": "walk"}),
             ("vlmm_200_lam_dx0", "vlmm", {"particles": 200, "velocity": "walk", "lam_dx": 0.0}),
             ("condensation_5000", "condensation", {"particles": 5000}),
             ("apf_1000x5", "apf-blobs", {"particles": 1000, "layers": 5})],

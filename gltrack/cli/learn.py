@@ -101,6 +101,9 @@ def format_report(rep: dict, clips: list) -> str:
     if rep.get("velocity_rho_median") is not None:
         lines.append(f"velocity memory:  lag-1 autocorrelation {rep['velocity_rho_median']:.2f} "
                      "(median over the angles, within a cluster)")
+    if rep.get("heading_rate_sd") is not None:
+        lines.append(f"root dynamics:    heading rate sd {rep['heading_rate_sd']:.2f} rad/s, "
+                     f"horizontal speed sd {rep['root_speed_sd']:.2f} m/s")
     tr, ho = rep["train_entropy"], rep["heldout_entropy"]
     if ho is not None and tr is not None and ho > 2.0 * tr + 0.25:
         lines.append("note:             held-out entropy is far above the training entropy: the "

@@ -28,8 +28,12 @@ Prediction (section 5) for particles carrying a feature vector and a VLMM state:
   frames of one cluster (0.47-0.87 on the CMU salsa takes at 30 fps);
 * otherwise the particle is re-sampled from the new cluster's Gaussian.
 
-The six root parameters are not modelled (the paper propagates them with plain Gaussian
-noise); a caller writes ``X'[:, :n_angles]`` back into ``params[:, 6:]``.
+The six root parameters are not in the clusters (the paper propagates them with plain Gaussian
+noise); a caller writes ``X'[:, :n_angles]`` back into ``params[:, 6:]``. The model does learn
+how the root moves (:func:`root_dynamics`, :attr:`BehaviourModel.root_dyn`): the spread and
+lag-1 autocorrelation of its six velocities over the training takes, with the two horizontal
+translations pooled so that the model does not prefer a direction of the floor.
+:class:`gltrack.motion.vlmm_prior.VlmmPrior` propagates the root with them.
 """
 from __future__ import annotations
 
@@ -74,6 +78,9 @@ class BehaviourModel:
     vel_rho : (n_angles,) float array in [0, 1) or None, the velocities' learnt lag-1
         autocorrelation within a cluster (:func:`velocity_memory`; None in models written
         before it was learnt: ``predict(velocity="ar1")`` then refuses).
+    root_dyn : (2, 6) float array or None, the root's learnt dynamics (:func:`root_dynamics`):
+        row 0 the standard deviation of each root parameter's velocity (m/s, rad/s), row 1 its
+        lag-1 autocorrelation in [0, 1); None in models written before it was learnt.
     """
 
     gmm: GaussianMixture
@@ -83,6 +90,7 @@ class BehaviourModel:
     dof_names: tuple = ()
     info: dict = field(default_factory=dict)
     vel_rho: np.ndarray | None = None
+    root_dyn: np.ndarray | None = None
 
     def __post_init__(self):
         if self.gmm.dim != 2 * self.n_angles:
@@ -100,6 +108,11 @@ class BehaviourModel:
             if r.shape != (self.n_angles,) or not np.all((r >= 0) & (r < 1)):
                 raise ValueError(f"vel_rho must be {self.n_angles} values in [0, 1)")
             self.vel_rho = r
+        if self.root_dyn is not None:
+            r = np.asarray(self.root_dyn, dtype=np.float64)
+            if not _valid_root_dyn(r):
+                raise ValueError("root_dyn must be (2, 6): velocity sds >= 0, rhos in [0, 1)")
+            self.root_dyn = r
 
     # ------------------------------------------------------------------ learning
     @classmethod
@@ -120,7 +133,8 @@ class BehaviourModel:
             the last ``holdout`` fraction of each training sequence is held out instead
             (and not learnt from). ``holdout=0`` learns from everything.
         augment : bool, add speed-resampled and smoothed copies of the training part
-            (``speeds``, ``smoothing`` as in :func:`gltrack.motion.features.augment`).
+            (``speeds``, ``smoothing`` as in :func:`gltrack.motion.features.augment`) for the
+            clusters and the VLMM; the root dynamics are learnt from the takes as they are.
         k_max, covariance, reg, tol, max_iter : passed to :func:`fit_fj_gmm`. Diagonal
             covariances are the default because a full one in 2 * n_angles dimensions needs
             thousands of frames per cluster under the MML criterion.
@@ -147,6 +161,7 @@ class BehaviourModel:
                 test.append(s[cut:])
         else:
             train, test = seqs, (_as_list(held_out) if held_out is not None else [])
+        raw = train
         if augment:
             train = [a for s in train for a in feat.augment(s, speeds, smoothing)]
         train_feats = [feat.motion_features(s, fps) for s in train]
@@ -160,13 +175,16 @@ class BehaviourModel:
         vlmm = Vlmm.fit(labels, k, max_memory=max_memory, epsilon=epsilon,
                         min_count=min_count, gamma=g)
         rho = velocity_memory(train_feats, labels, gmm.means[:, n_angles:])
+        # from the takes as recorded: the smoothed copies would invent memory (on the salsa
+        # takes they raise the heading's from 0.76 to 0.91)
+        root = root_dynamics(raw, fps)
         info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels)),
                 "velocity_rho_median": float(np.median(rho))}
         if test:
             test_labels = [gmm.predict(feat.motion_features(s, fps)) for s in test]
             info["heldout_frames"] = int(sum(len(t) for t in test_labels))
             info["heldout_entropy"] = float(vlmm.entropy(test_labels))
-        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info, rho)
+        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info, rho, root)
         log.info("behaviour model: %s", model.report())
         return model
 
@@ -214,8 +232,10 @@ class BehaviourModel:
         dict with ``n_clusters``, ``n_states``, ``max_memory_used`` (longest state),
         ``feature_dim``, ``fps``, ``train_frames``, ``train_entropy``, when a held-out set
         was used, ``heldout_frames`` and ``heldout_entropy`` (else None), and
-        ``velocity_rho_median``, the median of :attr:`vel_rho` (None without it). Entropies
-        are model entropies (eq. 2) in bits per frame.
+        ``velocity_rho_median``, the median of :attr:`vel_rho` (None without it);
+        ``root_speed_sd`` (m/s, horizontal) and ``heading_rate_sd`` (rad/s) of
+        :attr:`root_dyn` (None without it). Entropies are model entropies (eq. 2) in bits per
+        frame.
         """
         return {"n_clusters": self.gmm.n_components, "n_states": self.vlmm.n_states,
                 "max_memory_used": int(self.vlmm.depth.max()), "feature_dim": self.gmm.dim,
@@ -224,7 +244,11 @@ class BehaviourModel:
                 "heldout_frames": self.info.get("heldout_frames"),
                 "heldout_entropy": self.info.get("heldout_entropy"),
                 "velocity_rho_median": (None if self.vel_rho is None
-                                        else float(np.median(self.vel_rho)))}
+                                        else float(np.median(self.vel_rho))),
+                "root_speed_sd": (None if self.root_dyn is None
+                                  else float(self.root_dyn[0, 0])),
+                "heading_rate_sd": (None if self.root_dyn is None
+                                    else float(self.root_dyn[0, HEADING]))}
 
     # ------------------------------------------------------------------ use
     def features(self, params) -> np.ndarray:
@@ -328,6 +352,8 @@ class BehaviourModel:
                 "info": self.info}
         with open(path, "wb") as f:
             extra = {} if self.vel_rho is None else {"vel_rho": self.vel_rho}
+            if self.root_dyn is not None:
+                extra["root_dynamics"] = self.root_dyn
             np.savez(f, gmm_weights=self.gmm.weights, gmm_means=self.gmm.means,
                      gmm_covs=self.gmm.covs, gmm_cost_path=self.gmm.cost_path,
                      vlmm_next_dist=self.vlmm.next_dist, meta=np.array(json.dumps(meta)),
@@ -382,10 +408,66 @@ class BehaviourModel:
         if rho is not None and (rho.dtype.kind != "f" or rho.shape != (n_angles,)
                                 or not np.all((rho >= 0) & (rho < 1))):
             raise ValueError(f"{path}: field 'vel_rho' must be {n_angles} floats in [0, 1)")
+        root = arrays.get("root_dynamics")  # optional, as vel_rho
+        if root is not None and (root.dtype.kind != "f" or not _valid_root_dyn(root)):
+            raise ValueError(f"{path}: field 'root_dynamics' must be (2, 6) floats: velocity "
+                             f"sds >= 0, then autocorrelations in [0, 1)")
         try:
-            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info, rho)
+            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info, rho, root)
         except ValueError as e:
             raise ValueError(f"{path}: field 'meta': {e}") from None
+
+
+#: index of the heading (rotation about the vertical +Y) among the root parameters: the pelvis
+#: turns in the Euler order YXZ, heading first (gltrack.body.skeleton)
+HEADING = 3
+#: the root's horizontal translations (x, z; +Y is up), pooled by :func:`root_dynamics`
+_FLOOR = (0, 2)
+
+
+def _valid_root_dyn(r) -> bool:
+    r = np.asarray(r)
+    return (r.shape == (2, 6) and bool(np.all(np.isfinite(r))) and bool(np.all(r[0] >= 0))
+            and bool(np.all((r[1] >= 0) & (r[1] < 1))))
+
+
+def root_dynamics(sequences, fps: float) -> np.ndarray:
+    """How the root moves in the training takes: its velocities' spread and memory.
+
+    Parameters
+    ----------
+    sequences : (T, D) array or list of them, body parameters at ``fps`` (root translation in
+        metres in a +Y-up world, then the pelvis rotation, heading first, in radians).
+    fps : float, frame rate of every sequence.
+
+    Returns
+    -------
+    (2, 6) float64 array. Row 0: the standard deviation of each root parameter's velocity
+    (frame-to-frame differences times ``fps``; m/s, then rad/s, rotations unwrapped). Row 1:
+    its lag-1 autocorrelation, the least-squares slope of ``v_{t+1}`` on ``v_t``, clipped to
+    [0, 0.99]. Both are about zero velocity (where the subject goes and which way it turns
+    depend on the room, not the behaviour), and the two horizontal translations share one
+    value (the model has no preferred direction on the floor). Zeros where no sequence has
+    three frames.
+    """
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    sq, num, den, n = np.zeros(6), np.zeros(6), np.zeros(6), 0
+    for s in _as_list(sequences):
+        r = np.asarray(s, dtype=np.float64)[:, :6].copy()
+        if len(r) < 3:
+            continue
+        r[:, 3:] = np.unwrap(r[:, 3:], axis=0)
+        v = np.diff(r, axis=0) * float(fps)
+        sq += np.sum(v * v, axis=0)
+        num += np.sum(v[:-1] * v[1:], axis=0)
+        den += np.sum(v[:-1] * v[:-1], axis=0)
+        n += len(v)
+    for a in (sq, num, den):
+        a[list(_FLOOR)] = a[list(_FLOOR)].mean()
+    sd = np.sqrt(sq / n) if n else np.zeros(6)
+    rho = np.divide(num, den, out=np.zeros(6), where=den > 0)
+    return np.stack([sd, np.clip(rho, 0.0, 0.99)])
 
 
 def velocity_memory(features, labels, mean_velocities) -> np.ndarray:

@@ -77,8 +77,11 @@ class VlmmOptions(BlobEvidenceOptions):
         :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
     lam_dx : attenuation of the random walk's velocity noise (``velocity = "walk"`` only; the
         paper uses ``lam`` for both; 0 keeps a particle's cluster velocity)
-    root_scale, other_scale : multipliers of the DOF sigmas diffusing the root and the angles
-        the model does not cover
+    root : "ar1" (the root's learnt dynamics: every particle keeps a root velocity with the
+        training takes' spread and memory) or "walk" (the paper's Gaussian diffusion with the
+        DOF sigmas); see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
+    root_scale, other_scale : multipliers of the root's noise and of the DOF sigmas diffusing
+        the angles the model does not cover
     survival : target effective sample size / N that sets the weight exponent
     estimate : weighted "mean" (default: steadier under a noisy likelihood; salsa, condensation
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
@@ -104,6 +107,7 @@ class VlmmOptions(BlobEvidenceOptions):
     lam: float = 0.5
     velocity: str = "ar1"
     lam_dx: float = 0.5
+    root: str = "ar1"
     root_scale: float = 1.0
     other_scale: float = 1.0
     survival: float = 0.3
@@ -118,7 +122,7 @@ class VlmmOptions(BlobEvidenceOptions):
     def problems(self):
         bad = super().problems() + [
             *choice(self, "evaluation", EVALUATIONS), *choice(self, "estimate", ("best", "mean")),
-            *choice(self, "velocity", ("ar1", "walk")),
+            *choice(self, "velocity", ("ar1", "walk")), *choice(self, "root", ("ar1", "walk")),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 0, "lam", "lam_dx", "root_scale", "other_scale", "lost_threshold",
@@ -143,7 +147,7 @@ class VlmmTracker(Tracker):
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
                                lam_dx=opt.lam_dx, root_scale=opt.root_scale, velocity=opt.velocity,
-                               other_scale=opt.other_scale)
+                               root=opt.root, other_scale=opt.other_scale)
         # the prior is the whole motion step: the filter adds no diffusion of its own
         self.sampler = SIRFilter(StateSpace.from_dofs(body.dofs, dataset.fps), alpha=opt.survival)
         # the voxels place the candidates of initialisation and recovery in both evaluations
