@@ -543,7 +543,7 @@ def _root_walk(rng, sd, rho, n=20000, fps=30.0, n_angles=2):
 def test_root_dynamics_recovers_spread_and_memory():
     """The learnt root dynamics are each root velocity's spread and lag-1 autocorrelation; the
     two horizontal translations share theirs; rotations are unwrapped first."""
-    from gltrack.motion.behaviour import root_dynamics
+    from gltrack.motion.behaviour import root_dynamics, velocity_memory
 
     sd = np.array([0.6, 0.2, 0.4, 3.0, 0.8, 1.0])
     rho = np.array([0.9, 0.7, 0.9, 0.75, 0.3, 0.2])
@@ -569,6 +569,9 @@ def test_root_dynamics_recovers_spread_and_memory():
     part[:, 6:] = np.random.default_rng(1).normal(0, 0.1, (len(part), 2))
     m = BehaviourModel.fit(part, 30.0, np.random.default_rng(2), k_max=1, holdout=0)
     np.testing.assert_allclose(m.root_dyn, root_dynamics(part, 30.0))
+    X = m.features(part)
+    np.testing.assert_allclose(m.vel_rho, velocity_memory([X], [m.label(X)],
+                                                          m.gmm.means[:, m.n_angles:]))
     with pytest.raises(ValueError, match="fps"):
         root_dynamics(params, 0.0)
 

@@ -25,7 +25,8 @@ Prediction (section 5) for particles carrying a feature vector and a VLMM state:
   ``dx_{t+1} = mu_dx + rho * (dx_t - mu_dx) + sqrt(1 - rho^2) * n_dx``, whose spread stays the
   cluster's. ``rho`` (one per angle, :attr:`BehaviourModel.vel_rho`) is the lag-1
   autocorrelation of the training velocities about their cluster's mean, over consecutive
-  frames of one cluster (0.47-0.87 on the CMU salsa takes at 30 fps);
+  frames of one cluster, in the takes as recorded (median 0.72 on the CMU salsa takes at 30
+  fps; the smoothed copies of the augmentation would raise it to 0.79);
 * otherwise the particle is re-sampled from the new cluster's Gaussian.
 
 The six root parameters are not in the clusters (the paper propagates them with plain Gaussian
@@ -134,7 +135,8 @@ class BehaviourModel:
             (and not learnt from). ``holdout=0`` learns from everything.
         augment : bool, add speed-resampled and smoothed copies of the training part
             (``speeds``, ``smoothing`` as in :func:`gltrack.motion.features.augment`) for the
-            clusters and the VLMM; the root dynamics are learnt from the takes as they are.
+            clusters and the VLMM; the velocities' and the root's memory are learnt from the
+            takes as they are.
         k_max, covariance, reg, tol, max_iter : passed to :func:`fit_fj_gmm`. Diagonal
             covariances are the default because a full one in 2 * n_angles dimensions needs
             thousands of frames per cluster under the MML criterion.
@@ -174,10 +176,11 @@ class BehaviourModel:
         g = min(1e-3, 0.1 / k) if gamma is None else float(gamma)
         vlmm = Vlmm.fit(labels, k, max_memory=max_memory, epsilon=epsilon,
                         min_count=min_count, gamma=g)
-        rho = velocity_memory(train_feats, labels, gmm.means[:, n_angles:])
-        # from the takes as recorded: the smoothed copies would invent memory (on the salsa
-        # takes they raise the heading's from 0.76 to 0.91)
-        root = root_dynamics(raw, fps)
+        # the memories from the takes as recorded: the smoothed copies would invent some
+        raw_feats = [feat.motion_features(s, fps) for s in raw]
+        rho = velocity_memory(raw_feats, [gmm.predict(f) for f in raw_feats],
+                              gmm.means[:, n_angles:])
+        root = root_dynamics(raw, fps)  # (salsa: the heading's memory 0.76; smoothed 0.91)
         info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels)),
                 "velocity_rho_median": float(np.median(rho))}
         if test:
