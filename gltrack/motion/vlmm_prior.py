@@ -37,6 +37,17 @@ def _model_indices(model: BehaviourModel, dofs) -> np.ndarray:
     return np.arange(6, dofs.size)
 
 
+def _learnt_or_walk(option: str, value: str, learnt: bool, missing: str) -> str:
+    """``value`` of an "ar1" | "walk" option, or "walk" with a warning when the model lacks
+    what "ar1" learns (``missing`` says what and why)."""
+    if value not in ("ar1", "walk"):
+        raise ValueError(f"{option} must be 'ar1' or 'walk', got {value!r}")
+    if value == "ar1" and not learnt:
+        log.warning("the behaviour model has no learnt %s", missing)
+        return "walk"
+    return value
+
+
 class VlmmPrior:
     """The behaviour model as a particle motion model, keeping each particle's VLMM state.
 
@@ -89,22 +100,14 @@ class VlmmPrior:
                  lam_dx: float | None = None, root_scale: float = 1.0,
                  other_scale: float = 1.0, velocity: str = "ar1", root: str = "ar1"):
         self.model, self.dofs, self.fps, self.lam = model, dofs, float(fps), float(lam)
-        if velocity not in ("ar1", "walk"):
-            raise ValueError(f"velocity must be 'ar1' or 'walk', got {velocity!r}")
-        if velocity == "ar1" and model.vel_rho is None:
-            log.warning("the behaviour model has no learnt velocity memory (it was learnt by an "
-                        "older gltrack): its velocities random-walk as in the paper; relearn it "
-                        "with gltrack learn for the learnt autoregression")
-            velocity = "walk"
-        self.velocity = velocity
-        if root not in ("ar1", "walk"):
-            raise ValueError(f"root must be 'ar1' or 'walk', got {root!r}")
-        if root == "ar1" and model.root_dyn is None:
-            log.warning("the behaviour model has no learnt root dynamics (it was learnt by an "
-                        "older gltrack): the root diffuses as in the paper; relearn it with "
-                        "gltrack learn for the learnt root velocities")
-            root = "walk"
-        self.root = root
+        self.velocity = _learnt_or_walk(
+            "velocity", velocity, model.vel_rho is not None,
+            "velocity memory (it was learnt by an older gltrack): its velocities random-walk as "
+            "in the paper; relearn it with gltrack learn for the learnt autoregression")
+        self.root = _learnt_or_walk(
+            "root", root, model.root_dyn is not None,
+            "root dynamics (it was learnt by an older gltrack): the root diffuses as in the "
+            "paper; relearn it with gltrack learn for the learnt root velocities")
         self.lam_dx = self.lam if lam_dx is None else float(lam_dx)
         if abs(model.fps - self.fps) > 1e-6 * self.fps:
             log.warning("behaviour model learnt at %g frames/s, data at %g: cluster transitions "
@@ -116,7 +119,7 @@ class VlmmPrior:
         self.other = rest
         sig = dofs.sigma_at(self.fps)
         self.root_sigma = root_scale * sig[:6]
-        if root == "ar1":
+        if self.root == "ar1":
             # velocity spread per second; the memory is per model frame, so it is rescaled to
             # this data's frame interval
             self.root_sd = root_scale * model.root_dyn[0]
