@@ -106,7 +106,7 @@ class BehaviourModel:
         self.dof_names = tuple(str(n) for n in self.dof_names)
         if self.vel_rho is not None:
             r = np.asarray(self.vel_rho, dtype=np.float64)
-            if r.shape != (self.n_angles,) or not np.all((r >= 0) & (r < 1)):
+            if not _valid_vel_rho(r, self.n_angles):
                 raise ValueError(f"vel_rho must be {self.n_angles} values in [0, 1)")
             self.vel_rho = r
         if self.root_dyn is not None:
@@ -177,9 +177,12 @@ class BehaviourModel:
         vlmm = Vlmm.fit(labels, k, max_memory=max_memory, epsilon=epsilon,
                         min_count=min_count, gamma=g)
         # the memories from the takes as recorded: the smoothed copies would invent some
-        raw_feats = [feat.motion_features(s, fps) for s in raw]
-        rho = velocity_memory(raw_feats, [gmm.predict(f) for f in raw_feats],
-                              gmm.means[:, n_angles:])
+        if raw is train:  # no augmentation: the features and labels are those above
+            raw_feats, raw_labels = train_feats, labels
+        else:
+            raw_feats = [feat.motion_features(s, fps) for s in raw]
+            raw_labels = [gmm.predict(f) for f in raw_feats]
+        rho = velocity_memory(raw_feats, raw_labels, gmm.means[:, n_angles:])
         root = root_dynamics(raw, fps)  # (salsa: the heading's memory 0.76; smoothed 0.91)
         info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels)),
                 "velocity_rho_median": float(np.median(rho))}
@@ -408,8 +411,7 @@ class BehaviourModel:
         if not isinstance(info, dict):
             raise ValueError(f"{path}: field 'meta.info' must be an object")
         rho = arrays.get("vel_rho")  # optional: models written before it was learnt lack it
-        if rho is not None and (rho.dtype.kind != "f" or rho.shape != (n_angles,)
-                                or not np.all((rho >= 0) & (rho < 1))):
+        if rho is not None and (rho.dtype.kind != "f" or not _valid_vel_rho(rho, n_angles)):
             raise ValueError(f"{path}: field 'vel_rho' must be {n_angles} floats in [0, 1)")
         root = arrays.get("root_dynamics")  # optional, as vel_rho
         if root is not None and (root.dtype.kind != "f" or not _valid_root_dyn(root)):
@@ -426,6 +428,11 @@ class BehaviourModel:
 HEADING = 3
 #: the root's horizontal translations (x, z; +Y is up), pooled by :func:`root_dynamics`
 _FLOOR = (0, 2)
+
+
+def _valid_vel_rho(r, n_angles: int) -> bool:
+    r = np.asarray(r)
+    return r.shape == (n_angles,) and bool(np.all((r >= 0) & (r < 1)))
 
 
 def _valid_root_dyn(r) -> bool:
@@ -457,10 +464,9 @@ def root_dynamics(sequences, fps: float) -> np.ndarray:
         raise ValueError(f"fps must be positive, got {fps}")
     sq, num, den, n = np.zeros(6), np.zeros(6), np.zeros(6), 0
     for s in _as_list(sequences):
-        r = np.asarray(s, dtype=np.float64)[:, :6].copy()
-        if len(r) < 3:
+        if len(s) < 3:
             continue
-        r[:, 3:] = np.unwrap(r[:, 3:], axis=0)
+        r = feat._unwrap_rotations(np.asarray(s, dtype=np.float64)[:, :6])
         v = np.diff(r, axis=0) * float(fps)
         sq += np.sum(v * v, axis=0)
         num += np.sum(v[:-1] * v[1:], axis=0)
