@@ -667,12 +667,13 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
                  mv.arm_grid(d, 10), far=0.4, near=0.15)
 
 
-def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path, caplog):
-    """``ground_contact``: with the dataset's floor recorded, a pose lifted 0.3 m is weighted
-    as if its silhouette error were ``area * (excess / GROUND_SCALE)`` pixels larger (its lower
-    ankle's height over the floor beyond the allowance), a pose standing within the allowance
-    as before; a dataset that records no floor leaves the prior off and says so."""
-    import json
+def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path):
+    """``ground_contact``: a pose lifted 0.3 m off the ground the cameras see the person on is
+    weighted as if its silhouette error were ``area * (excess / GROUND_SCALE)`` pixels larger
+    (its lowest joint's height over the reference beyond the allowance), a pose standing within
+    the allowance as before. The reference is the bottom of the frame's visual hull, put down
+    to the floor when the dataset records one within reach; a dataset without a floor still has
+    the hull's. Off (0), nothing changes."""
     import shutil
 
     from gltrack.data.dataset import Dataset
@@ -680,8 +681,7 @@ def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path, capl
     from gltrack.track.multiview import HpsOptions, HPSTracker
 
     path, body, P = dataset
-    ankles = [body.skeleton.index(n) for n in ("l_ankle", "r_ankle")]
-    lowest = body.joints(P[3][None])[0, ankles, 1].min()
+    lowest = body.joints(P[3][None])[0, :, 1].min()
     floored = tmp_path / "ds"
     shutil.copytree(path, floored)
     meta = json.loads((floored / "meta.json").read_text())
@@ -699,25 +699,59 @@ def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path, capl
                         HpsOptions(particles=12, ground_contact=contact), np.random.default_rng(0))
         try:
             tr.start(0, P[0])
-            tr.observe(3)
-            return tr.weights(X), tr.scores(X), tr.area, tr.floor
+            _, fgs, blocks = tr.observe(3)
+            tr.observe_ground([f | b for f, b in zip(fgs, blocks)])
+            return tr.weights(X), tr.scores(X), tr.area, tr.ground
         finally:
             tr.close()
 
-    w_off, (e_s, c_a), area, floor = weigh(floored, 0.0)
-    assert floor is None
-    w_on, (e_s2, c_a2), area2, floor = weigh(floored, 0.1)
-    assert floor == pytest.approx(lowest - 0.05)
+    w_off, (e_s, c_a), area, ground = weigh(floored, 0.0)
+    assert ground is None
+    w_on, (e_s2, c_a2), area2, ground = weigh(floored, 0.1)
+    reference, allowance = ground
+    assert reference == pytest.approx(lowest - 0.05)  # the hull reaches the floor: on it
+    assert 0.1 < allowance < 0.2  # ground_contact plus a voxel edge
     np.testing.assert_array_equal(e_s2, e_s)  # the silhouette error itself is unchanged
-    excess = np.array([0.0, 0.3 + 0.05 - 0.1, 0.0])
+    excess = np.clip(np.array([0.05, 0.35, 0.05]) - allowance, 0.0, None)
     want = bandouch_weights(e_s + area2 * excess / HPSTracker.GROUND_SCALE, c_a, 0.7, 0.3)
     np.testing.assert_allclose(w_on, want, rtol=1e-9)
     assert np.argmax(w_off) == np.argmax(w_on) == 0
     assert w_off[1] > w_off[2] and w_on[1] < w_on[2], (w_off, w_on)  # the floating one drops
-    # no floor recorded: off, with a warning that names the dataset
-    with caplog.at_level("WARNING"):
-        w_none, _, _, floor = weigh(path, 0.1)
-    assert floor is None and "records no floor" in caplog.text and str(path) in caplog.text
-    np.testing.assert_array_equal(w_none, w_off)
+    # no floor recorded: the hull's bottom (the soles, within a voxel) is the reference
+    w_hull, _, _, ground = weigh(path, 0.1)
+    assert lowest - 0.15 < ground[0] < lowest
+    assert w_hull[1] < w_hull[2], w_hull
     with pytest.raises(ValueError, match="ground_contact"):
         HpsOptions(ground_contact=-0.1).validate()
+
+
+def test_ground_contact_follows_a_jump(dataset, ctx):
+    """Masks of a body 0.5 m in the air (a jump) lift the reference with it: the airborne pose
+    costs nothing, whatever the floor; masks that do not meet give no reference."""
+    from gltrack.data.dataset import Dataset
+    from gltrack.observe.model_masks import model_silhouette
+    from gltrack.render.reference import skin_vertices
+    from gltrack.track.multiview import HpsOptions, HPSTracker
+
+    path, body, P = dataset
+    jump = P[3].copy()
+    jump[body.dofs.index("pelvis_ty")] += 0.5
+    lowest = body.joints(jump[None])[0, :, 1].min()
+    tr = HPSTracker(Dataset.open(path), body, ctx, HpsOptions(particles=12, ground_contact=0.1),
+                    np.random.default_rng(0))
+    try:
+        tr.floor = float(body.joints(P[3][None])[0, :, 1].min() - 0.05)
+        tr.observe(3)
+        V = skin_vertices(body.mesh, body.skinning(jump[None]))[0]
+        masks = [model_silhouette(cam, V, body.mesh.faces) for cam in tr.obs.pinholes]
+        tr.observe_ground(masks)
+        assert tr.ground is not None and tr.ground[0] > tr.floor + 0.3
+        assert tr.ground[0] < lowest
+        assert tr.ground_cost(jump[None])[0] == 0.0
+        high = jump.copy()
+        high[body.dofs.index("pelvis_ty")] += 0.4
+        assert tr.ground_cost(high[None])[0] > 0.0
+        tr.observe_ground([np.zeros_like(m) for m in masks])
+        assert tr.ground is None and tr.ground_cost(high[None]) == 0.0
+    finally:
+        tr.close()

@@ -239,22 +239,27 @@ class MultiviewOptions(Options):
         / 0.613 / 0.624 / 0.599, joint jitter 50.7 against 38.8 mm/frame^2 (95th percentile
         108.6 against 65.3), 1.16x the time; and the honest bench's 5-frame hop came out 3.4
         mm worse. Not a default while it makes a real track jumpier
-    ground_contact : 0 (default, off) or metres: a prior against a standing body leaving the
-        floor, for datasets that record their floor (``world.floor`` of ``gltrack ingest``; a
-        dataset without one leaves it off, with a warning). A pose whose lower ankle joint is
-        more than this above the floor is weighted as if its silhouette error were larger by
+    ground_contact : 0 (off) or metres: a prior against a body leaving the ground the
+        cameras see it on. Each frame's visual hull (the scored masks, one camera allowed to
+        miss a voxel with 4 or more cameras; the person's connected part) gives the lowest
+        point of the person; a pose whose lowest joint is more than ``ground_contact`` plus a
+        voxel edge above it is weighted as if its silhouette error were larger by
         ``area * (excess / GROUND_SCALE)`` pixels (:meth:`MultiviewTracker.ground_cost`), in
-        every weighting (sampler layers, coarse layers, sweeps). Why: on the Pose2Sim take the
-        model floats (its lower ankle 0.3-0.4 m above the floor over frames 30-59 while the
-        person stands on the force plate), and at a floating root no leg reaches the standing
-        shank: a leg put down to the floor there costs 19-227 more pixels of e_S. Measured
-        (2026-11-28, llvmpipe, ``hps`` defaults, the whole take from one fixed body and start,
-        seed 0, 0.2 m: the ankle's height over the sole and a support like the force plate):
-        the lower ankle stays at 0.15-0.17 m over frames 20-59 instead of 0.22-0.40, and in
-        the overlays of frames 45 and 50 a leg stands on the shank in cam_03 and cam_04; mean
-        IoU per camera 0.546 / 0.583 / 0.631 / 0.597 against 0.545 / 0.608 / 0.609 / 0.600,
-        jitter 38.5 against 38.4 mm/frame^2: a better-looking pose, not a better fit. Off by
-        default: one take, one seed, and a jump leaves the floor (a soft prior, not a bound)
+        every weighting (sampler layers, coarse layers, sweeps, the automatic start's
+        refinement). A dataset that records its floor (``world.floor`` of ``gltrack ingest``)
+        puts the reference down to the floor whenever the hull comes within that allowance of
+        it: a foot that one camera's mask misses still stands on the floor. A jump lifts the
+        hull and the reference with it. Off for ``--dof upper`` (the legs are not tracked).
+        Why: on the Pose2Sim take the model floats (its lower ankle 0.3-0.4 m above the floor
+        over frames 30-59 while the person stands on the force plate), and at a floating root
+        no leg reaches the standing shank: a leg put down to the floor there costs 19-227 more
+        pixels of e_S. Measured (2026-11-28, llvmpipe, ``hps`` defaults, the whole take from
+        one fixed body and start, seed 0, 0.2 m from the recorded floor, before the hull
+        reference): the lower ankle stays at 0.15-0.17 m over frames 20-59 instead of
+        0.22-0.40, and in the overlays of frames 45 and 50 a leg stands on the shank in cam_03
+        and cam_04; mean IoU per camera 0.546 / 0.583 / 0.631 / 0.597 against 0.545 / 0.608 /
+        0.609 / 0.600, jitter 38.5 against 38.4 mm/frame^2: a better-looking pose, not a
+        better fit
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -495,14 +500,13 @@ class MultiviewTracker(Tracker):
         self._limb_grids = ((arm_grid(body.dofs, self.opt.arm_sweep) if self.opt.arm_sweep else [])
                             + (limb_grid(body.dofs, self.opt.leg_sweep, limbs=LEGS)
                                if self.opt.leg_sweep else []))
-        #: the floor's height along +Y (metres) for ``ground_contact``; None when that is off
-        self.floor = None
-        if self.opt.ground_contact:
-            self.floor = dataset.floor_height()
-            if self.floor is None:
-                log.warning("ground_contact: %s records no floor (world.floor in meta.json); "
-                            "the prior is off", dataset.path)
-        self._ankles = [body.skeleton.index(n) for n in ("l_ankle", "r_ankle")]
+        #: the floor's height along +Y (metres) when the dataset records it (``ground_contact``)
+        self.floor = dataset.floor_height()
+        #: ``ground_contact`` in use (0 with ``--dof upper``: the legs are not tracked)
+        self.contact = float(self.opt.ground_contact) if body.dofs.preset != "upper" else 0.0
+        #: this frame's ground reference along +Y (metres; :meth:`observe_ground`), None = none
+        self.ground = None
+        self._volume = default_volume(self.obs.pinholes)
 
     @property
     def appearance(self):
@@ -562,13 +566,43 @@ class MultiviewTracker(Tracker):
         return self._weights(e_s + self.ground_cost(X), c_a)
 
     def ground_cost(self, X: np.ndarray) -> np.ndarray | float:
-        """(N,) silhouette-error pixels added for a lower ankle joint more than
-        ``ground_contact`` metres above the floor (0 when the prior is off)."""
-        if self.floor is None:
+        """(N,) silhouette-error pixels added for a lowest joint more than the allowance
+        above this frame's ground reference (0 when the prior is off or has no reference)."""
+        if self.ground is None:
             return 0.0
-        lowest = self.body.joints(X)[:, self._ankles, 1].min(axis=1)
-        excess = np.clip(lowest - self.floor - self.opt.ground_contact, 0.0, None)
+        ground, allowance = self.ground
+        lowest = self.body.joints(X)[:, :, 1].min(axis=1)
+        excess = np.clip(lowest - ground - allowance, 0.0, None)
         return self.area * excess / self.GROUND_SCALE
+
+    def observe_ground(self, masks) -> None:
+        """Set :attr:`ground` from a frame's masks: ``(reference height, allowance)`` in metres
+        along +Y, or None when ``ground_contact`` is off or the masks do not meet.
+
+        The reference is the bottom of the person's part of the masks' visual hull (a voxel
+        survives one camera that misses it when there are 4 or more; the finest voxel is
+        ``volume / 64``, ~5 cm); the allowance ``ground_contact`` plus that voxel edge, as the
+        hull is only as fine as its voxels. With the floor recorded, a hull that comes within
+        the allowance of it puts the reference on the floor.
+        """
+        self.ground = None
+        if not self.contact:
+            return
+        tolerance = 1 if len(masks) >= 4 else 0
+        hull = carve(self.obs.pinholes, masks, self._volume, base=16, max_depth=2,
+                     tolerance=tolerance, distort=False)
+        if len(hull) == 0:
+            return
+        pts, vol = hull.points(max_size=0.06)
+        person = pick_person(pts, vol)
+        if person is None:
+            return
+        edge = float(np.cbrt(vol[person.index].min()))
+        bottom = float(person.lo[1]) - 0.5 * edge
+        allowance = self.contact + edge
+        if self.floor is not None and bottom < self.floor + allowance:
+            bottom = self.floor
+        self.ground = (bottom, allowance)
 
     def _weights(self, e_s, c_a):
         o = self.opt
@@ -613,7 +647,8 @@ class MultiviewTracker(Tracker):
         o, d = self.opt, self.body.dofs
         yaw = d.index("pelvis_ry")
         images, masks = self.obs(frame)
-        volume = default_volume(self.obs.pinholes)
+        self.observe_ground(masks)
+        volume = self._volume
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=2, distort=False)
         if len(hull) == 0:
             raise NoPersonError(f"frame {frame}: the cameras' foreground masks do not meet inside "
@@ -741,9 +776,11 @@ class MultiviewTracker(Tracker):
             S = self.body.skinning(self.last[None])
             self.obs.model = (skin_vertices(self.body.mesh, S)[0], self.body.mesh.faces)
         try:
-            images, fgs, _ = self.observe(frame)
+            images, fgs, blocks = self.observe(frame)
         finally:
             self.obs.model = None
+        # blocked pixels (occluders) may hide the person: they do not carve the hull away
+        self.observe_ground([f | b for f, b in zip(fgs, blocks)])
         if self.opt.velocity:
             self.particles = self.body.dofs.validate(self.particles + self.opt.velocity * self.velocity)
         predict = self.prior.predict if self.prior is not None else None
