@@ -580,10 +580,10 @@ class MultiviewTracker(Tracker):
         along +Y, or None when ``ground_contact`` is off or the masks do not meet.
 
         The reference is the bottom of the person's part of the masks' visual hull (a voxel
-        survives one camera that misses it when there are 4 or more; the finest voxel is
-        ``volume / 64``, ~5 cm); the allowance ``ground_contact`` plus that voxel edge, as the
-        hull is only as fine as its voxels. With the floor recorded, a hull that comes within
-        the allowance of it puts the reference on the floor.
+        survives one camera that misses it when there are 4 or more; the finest voxel edge is
+        the tracking volume's longest side / 64, ~5 cm); the allowance ``ground_contact`` plus
+        that voxel edge, as the hull is only as fine as its voxels. With the floor recorded, a
+        hull that comes within the allowance of it puts the reference on the floor.
         """
         self.ground = None
         if not self.contact:
