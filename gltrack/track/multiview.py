@@ -259,7 +259,10 @@ class MultiviewOptions(Options):
         0.22-0.40, and in the overlays of frames 45 and 50 a leg stands on the shank in cam_03
         and cam_04; mean IoU per camera 0.546 / 0.583 / 0.631 / 0.597 against 0.545 / 0.608 /
         0.609 / 0.600, jitter 38.5 against 38.4 mm/frame^2: a better-looking pose, not a
-        better fit
+        better fit. Off by default: with the hull reference (0.15 m) neither the honest
+        synthetic clips (walk, hop, salsa; 3 seeds; 84.5 / 117.0 / 80.9 mm against 80.7 /
+        100.0 / 79.6) nor the Pose2Sim take (IoU within 0.02 per camera) measured better
+        (README, "Ground contact from the visual hull")
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
