@@ -36,6 +36,15 @@ def add_arguments(p):
                    help="score even when DATASET is not the one RESULT/run.json records (its "
                         "fingerprint differs) or, for results without that record, when the "
                         "result does not cover the dataset's frames")
+    p.add_argument("--reference", metavar="FILE.trc", default=None,
+                   help="also compare the joints with an independent 3-D reconstruction of the "
+                        "take (Pose2Sim/OpenSim .trc, markers named like LHip, r_knee, "
+                        "left_wrist): per-joint distances over hips, knees, ankles, shoulders, "
+                        "elbows and wrists; frames matched by its Time column")
+    p.add_argument("--reference-axes", choices=("opensim", "calibration"), default="opensim",
+                   help="axes of the --reference file: 'opensim' (default) the Y-up "
+                        "relabelling Pose2Sim and gltrack export write, 'calibration' the "
+                        "calibration's own axes")
 
 
 def coverage(result, run: dict, n_truth, where: str, force: bool = False,
@@ -132,6 +141,33 @@ def _infos_now(args, result, recorded, infos):
     return merged
 
 
+def _against_reference(args, result, fps):
+    """The comparison with ``--reference`` (:mod:`gltrack.eval.reference`), or None."""
+    from gltrack.eval.reference import compare_reference, load_reference
+    from .common import UsageError
+
+    if not args.reference:
+        return None
+    if fps is None:
+        raise UsageError(f"--reference needs the dataset folder (its frame rate matches the "
+                         f"file's times to frames), not the file {args.dataset}")
+    if not Path(args.reference).is_file():
+        raise UsageError(f"--reference {args.reference}: no such file")
+    try:
+        ref = load_reference(args.reference, result, fps, axes=args.reference_axes)
+        return compare_reference(result, ref)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def _print_reference(against, metrics) -> None:
+    from gltrack.eval.reference import reference_table
+
+    if against is not None:
+        print(reference_table(against))
+        metrics["reference"] = against
+
+
 def groundtruth_in_result_frame(gt, result):
     """A dataset's ground truth (internal frame, like its cameras) in the frame of ``result``'s
     joints and markers (the user's, :mod:`gltrack.data.results`): eval compares like with
@@ -191,6 +227,7 @@ def run(args):
         stature = recorded_stature(ds.meta)
         ds.close()
     cover = coverage(result, run, n_truth, args.result, args.force, dataset=args.dataset)
+    against = _against_reference(args, result, fps)
     infos = frame_infos(args.result)
     if args.iou_now:
         infos = _infos_now(args, result, recorded, infos)
@@ -206,6 +243,7 @@ def run(args):
         print(f"{args.result}: method {result['method']!r} on {args.dataset} (no ground truth: "
               f"quality only, {metrics['frames']} frames); {cover['text']}")
         print(quality_table(quality))
+        _print_reference(against, metrics)
         if args.json:
             report.write_json(metrics, args.json)
         if args.csv:
@@ -228,6 +266,7 @@ def run(args):
     print(f"{args.result}: method {result['method']!r} vs {args.dataset}; {cover['text']}")
     print(report.summary_table(metrics))
     print(quality_table(quality))
+    _print_reference(against, metrics)
     if args.json:
         report.write_json(metrics, args.json)
     if args.csv:
