@@ -466,6 +466,62 @@ def _distort_normalised(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return np.stack([xd, yd], axis=-1)
 
 
+def triangulate(cameras, uv, *, distort: bool = True):
+    """3-D points seen in several calibrated views: linear (DLT) triangulation.
+
+    Each camera's pixels are undistorted first (:meth:`Camera.undistort_points`), so the rays
+    are exact for the lens model; the linear solution minimises an algebraic error, which for
+    pixel-accurate observations is within a fraction of a millimetre of the reprojection
+    optimum at room scale.
+
+    Parameters
+    ----------
+    cameras : sequence (C) of Camera
+    uv : (C, N, 2) array_like, pixels of each point in each camera's image; NaN where a camera
+        does not see the point
+    distort : bool, ``uv`` are pixels of the real (distorted) images (as :meth:`Camera.project`
+        with ``distort=True`` gives them); False: of the undistorted pinhole images
+
+    Returns
+    -------
+    points : (N, 3) float64, metres, the cameras' world frame; NaN for a point seen by fewer
+        than two cameras
+    residual : (C, N) float64, pixels, each observation's distance to the reprojected point
+        (NaN where there is none)
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[0] != len(cameras) or uv.shape[2] != 2:
+        raise ValueError(f"uv must be ({len(cameras)}, N, 2), got {uv.shape}")
+    C, N = uv.shape[:2]
+    seen = np.isfinite(uv).all(axis=2)
+    und = np.full_like(uv, np.nan)
+    for c, cam in enumerate(cameras):
+        if seen[c].any():
+            und[c, seen[c]] = cam.undistort_points(uv[c, seen[c]]) if distort else uv[c, seen[c]]
+    points = np.full((N, 3), np.nan)
+    for n in range(N):
+        rows = []
+        for c, cam in enumerate(cameras):
+            if not seen[c, n]:
+                continue
+            # normalised image coordinates of the ray; P = [R | t]
+            x = (und[c, n, 0] - cam.cx) / cam.fx
+            y = (und[c, n, 1] - cam.cy) / cam.fy
+            P = np.hstack([cam.R, cam.t[:, None]])
+            rows += [x * P[2] - P[0], y * P[2] - P[1]]
+        if len(rows) >= 4:
+            X = np.linalg.svd(np.asarray(rows))[2][-1]
+            points[n] = X[:3] / X[3]
+    residual = np.full((C, N), np.nan)
+    ok = np.isfinite(points).all(axis=1)
+    for c, cam in enumerate(cameras):
+        m = seen[c] & ok
+        if m.any():
+            residual[c, m] = np.linalg.norm(cam.project(points[m], distort=distort) - uv[c, m],
+                                            axis=1)
+    return points, residual
+
+
 def linearize_gl_depth(depth, near: float, far: float) -> np.ndarray:
     """Window depth from a :meth:`Camera.gl_projection` render to camera ``z`` in metres.
 
