@@ -470,9 +470,9 @@ def triangulate(cameras, uv, *, distort: bool = True):
     """3-D points seen in several calibrated views: linear (DLT) triangulation.
 
     Each camera's pixels are undistorted first (:meth:`Camera.undistort_points`), so the rays
-    are exact for the lens model; the linear solution minimises an algebraic error, which for
-    pixel-accurate observations is within a fraction of a millimetre of the reprojection
-    optimum at room scale.
+    are exact for the lens model. The linear solution minimises an algebraic error: exact for
+    noise-free observations, close to (not the same as) the reprojection optimum with noise,
+    which is why the residuals are returned.
 
     Parameters
     ----------

@@ -8,7 +8,9 @@ With ground truth the printed table and the JSON keys are those of
 with the per-frame IoU and jitter columns (also what ``--csv`` writes); ``--plot`` needs
 ground truth. ``quality.iou_source`` says whether the silhouette figures are those recorded while
 tracking (``"recorded"``) or computed again against the dataset's masks (``"recomputed"``,
-``--iou-now``)."""
+``--iou-now``). With ``--reference`` the comparison with an independent reconstruction of the
+take (:func:`gltrack.eval.reference.compare_reference`) is printed and written under
+``"reference"``, with or without ground truth."""
 from __future__ import annotations
 
 from pathlib import Path
