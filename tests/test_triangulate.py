@@ -1,5 +1,5 @@
 """Triangulation of labelled views (:func:`gltrack.camera.triangulate`) and the hand-labelled
-reference of the shared Pose2Sim take (``scripts/pose2sim_reference.py``)."""
+references of the shared takes (``scripts/labelled_reference.py``)."""
 import dataclasses
 import importlib.util
 
@@ -46,14 +46,29 @@ def test_triangulation_recovers_points_through_the_lens():
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("pose2sim_reference",
-                                                  REPO / "scripts" / "pose2sim_reference.py")
+    spec = importlib.util.spec_from_file_location("labelled_reference",
+                                                  REPO / "scripts" / "labelled_reference.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
-def test_hand_labels_of_the_pose2sim_take_agree_across_views(shared, tmp_path):
+#: each keypoints file, its cameras and the bones (joint pair, metres) every frame must give
+KEYPOINTS = {
+    "pose2sim_balancing_keypoints.json": (
+        ("cam_01", "cam_02", "cam_03", "cam_04"),
+        {("l_hip", "l_knee"): (0.3, 0.55), ("r_hip", "r_knee"): (0.3, 0.55),
+         ("l_knee", "l_ankle"): (0.3, 0.55), ("r_knee", "r_ankle"): (0.3, 0.55)}),
+    "caliscope_4cam_keypoints.json": (
+        ("cam0", "cam1", "cam2", "cam3"),
+        {("l_shoulder", "l_elbow"): (0.22, 0.38), ("r_shoulder", "r_elbow"): (0.22, 0.38),
+         ("l_elbow", "l_wrist"): (0.18, 0.34), ("r_elbow", "r_wrist"): (0.18, 0.34),
+         ("l_shoulder", "r_shoulder"): (0.25, 0.45)}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(KEYPOINTS))
+def test_hand_labels_of_a_shared_take_agree_across_views(shared, tmp_path, name):
     """The labelled joints triangulate consistently (every view within 40 px of the point the
     others agree on), give plausible bones, and their left and right are the same limbs in
     every view: exchanging them in any one view makes the views disagree several times more."""
@@ -62,33 +77,55 @@ def test_hand_labels_of_the_pose2sim_take_agree_across_views(shared, tmp_path):
     from gltrack.data.calibration import load_any_calibration
 
     mod = _script()
-    labels = json.loads(mod.LABELS.read_text())
-    calib = shared / "video" / "pose2sim_balancing_4cam" / labels["calibration"]
+    path = REPO / "scripts" / "data" / name
+    labels = mod.load_labels(path)
+    calib = shared / labels["take"].removeprefix("../shared/") / labels["calibration"]
     cams = load_any_calibration(calib)
     frames, pts, res = mod.reference_points(labels, cams)
-    assert frames == [10, 30, 50, 70, 90]
+    assert len(frames) == 5 and np.isfinite(pts).all()
     assert np.nanmax(res) < 40 and np.nanmedian(res) < 15
     J = labels["joints"]
-    seg = lambda a, b: np.linalg.norm(pts[:, J.index(a)] - pts[:, J.index(b)], axis=1)  # noqa: E731
-    for side in "lr":
-        assert np.all((seg(f"{side}_hip", f"{side}_knee") > 0.3)
-                      & (seg(f"{side}_hip", f"{side}_knee") < 0.55))
-        assert np.all((seg(f"{side}_knee", f"{side}_ankle") > 0.3)
-                      & (seg(f"{side}_knee", f"{side}_ankle") < 0.55))
-    ankles = pts[:, [J.index("l_ankle"), J.index("r_ankle")], 2]   # Z up, floor near 0
-    assert np.all(ankles.min(axis=1) < 0.25) and np.all(ankles > 0.0)
+    views, bones = KEYPOINTS[name]
+    for (a, b), (lo, hi) in bones.items():
+        d = np.linalg.norm(pts[:, J.index(a)] - pts[:, J.index(b)], axis=1)
+        assert np.all((d > lo) & (d < hi)), (a, b, d)
+    if "l_ankle" in J:
+        ankles = pts[:, [J.index("l_ankle"), J.index("r_ankle")], 2]   # Z up, floor near 0
+        assert np.all(ankles.min(axis=1) < 0.25) and np.all(ankles > 0.0)
     swap = [J.index(("r_" + j[2:]) if j.startswith("l_") else ("l_" + j[2:]))
             if j[:2] in ("l_", "r_") else J.index(j) for j in J]
-    for cam in ("cam_01", "cam_02", "cam_03", "cam_04"):
+    for cam in views:
         mixed = json.loads(json.dumps(labels))
         for f in mixed["frames"].values():
             v = f[cam]
             f[cam] = {J[i]: v[J[s]] for i, s in enumerate(swap)}
         assert np.nansum(mod.reference_points(mixed, cams)[2]) > 3 * np.nansum(res), cam
-    # and the script writes a TRC that eval's reader takes
-    assert mod.main(["--shared", str(shared), "--out", str(tmp_path / "ref.trc")]) == 0
-    from gltrack.export.trc import read_trc
+    # and the script writes a TRC that eval's reader takes, in either axes
+    from gltrack.export.trc import opensim_axes, read_trc
 
-    trc = read_trc(tmp_path / "ref.trc")
-    assert trc["names"][1] == "LShoulder" and trc["frame"].tolist() == [11, 31, 51, 71, 91]
-    np.testing.assert_allclose(trc["time"], np.array(frames) / 60.0, atol=1e-5)
+    for axes in ("opensim", "calibration"):
+        out = tmp_path / f"{axes}.trc"
+        assert mod.main(["--keypoints", str(path), "--shared", str(shared), "--axes", axes,
+                         "--out", str(out)]) == 0
+        trc = read_trc(out)
+        assert trc["names"] == [mod.P2S_NAMES[j] for j in J]
+        assert trc["frame"].tolist() == [f + 1 for f in frames]
+        np.testing.assert_allclose(trc["time"], np.array(frames) / labels["fps"], atol=1e-5)
+        M = opensim_axes(labels["up"]) if axes == "opensim" else np.eye(3)
+        np.testing.assert_allclose(trc["points"][:, 0] / 1000.0, pts[:, 0] @ M.T, atol=1e-4)
+
+
+def test_labelled_reference_rejects_an_incomplete_keypoints_file(tmp_path, capsys):
+    """A keypoints file without a field the TRC needs is refused with the file and the field."""
+    mod = _script()
+    bad = tmp_path / "kp.json"
+    bad.write_text('{"take": "x", "calibration": "c.toml", "up": "z", "joints": ["nose"], '
+                   '"frames": {}}')
+    assert mod.main(["--keypoints", str(bad), "--out", str(tmp_path / "r.trc")]) == 1
+    err = capsys.readouterr().err
+    assert str(bad) in err and "'fps'" in err
+    bad.write_text('{"take": "x", "calibration": "c.toml", "fps": 6, "up": "z", '
+                   '"joints": ["chin"], "frames": {}}')
+    assert mod.main(["--keypoints", str(bad), "--out", str(tmp_path / "r.trc")]) == 1
+    assert "'chin'" in capsys.readouterr().err
+    assert not (tmp_path / "r.trc").exists()
