@@ -185,14 +185,22 @@ def test_two_modes_keeps_the_turned_round_twin():
 def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys, monkeypatch):
     """Face-on, one depth frame fits the body and its turned-round twin about equally; the
     runner tracks both for a few frames and keeps the one that explains them: the walk is
-    tracked the right way round. The progress bar says what it does before the first frame
-    (shown at once here: on a real take the start comes after its delay)."""
+    tracked the right way round. On a tie the start's own best is kept (it is the decision's
+    incumbent). The progress bar says what it does before the first frame (shown at once
+    here: on a real take the start comes after its delay)."""
     import logging
 
     from gltrack.track import runner
     from gltrack.track.runner import track
 
     monkeypatch.setattr(runner, "BAR_DELAY", 0.0)
+    decide, incumbents = runner._decide, []
+
+    def spy(trackers, frames, hooks, incumbent=None):
+        incumbents.append(incumbent)
+        return decide(trackers, frames, hooks, incumbent)
+
+    monkeypatch.setattr(runner, "_decide", spy)
 
     make_depth_dataset(tmp_path / "ds", n=12)
     gt = Dataset.open(tmp_path / "ds").groundtruth()
@@ -202,6 +210,7 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys
     err = np.linalg.norm(res["joints"] - gt["joints"][res["frame"]], axis=2).mean()
     assert err < 0.06, err
     assert "start hypotheses tracked over 6 frames" in caplog.text
+    assert incumbents == [0]
     bar = capsys.readouterr().err
     assert "--init auto: finding the start" in bar
     assert "start hypotheses, each tracked 6 frames" in bar

@@ -193,12 +193,22 @@ def _decide(trackers, frames, hooks, incumbent: int | None = None):
     (``info["quality"]`` when every frame has one, else the score; lower = better) is lowest,
     and every tracker's (estimate, seconds) per frame.
 
-    ``incumbent``: the index of a tracker that goes on from its own track (a re-start's lost
-    tracker). It is kept when its mean is within :data:`TIE` of the best: a tie is what a body
-    and its turned-round twin give, and the track's continuity, which the qualities do not
-    count, is then the better evidence. Measured: on the hop clip (noise seed 0) a false alarm
-    (quality 0.47-0.50 on a track 0.05-0.09 m off) tied 0.431 against the twin's 0.430, the
-    twin was kept and the track was 0.3-0.5 m off for 35 frames.
+    ``incumbent``: the index of the hypothesis with the better evidence behind it, kept when
+    its mean is within :data:`TIE` of the best: a tie is what a body and its turned-round twin
+    give, and then evidence the qualities do not count decides.
+
+    - A re-start's lost tracker, which goes on from its own track: the track's continuity.
+      Measured: on the hop clip (noise seed 0) a false alarm (quality 0.47-0.50 on a track
+      0.05-0.09 m off) tied 0.431 against the twin's 0.430, the twin was kept and the track
+      was 0.3-0.5 m off for 35 frames.
+    - The first start, the automatic start's best (:meth:`~gltrack.track.base.Tracker.
+      start_hypotheses` ranks its hypotheses by a search on the start frame far wider than a
+      tracker's step: each seed refined on its own, limbs mirrored and swept). Measured: on the
+      seated caliscope take the start's best faced the cameras, the turned-round twin tied
+      (0.330 against 0.359 over 10 frames, as the masks lost the torso) and was kept, and the
+      whole take was tracked facing away, 498 mm from the hand-labelled joints against 366
+      with the start's best; on the simulated walk, hop and salsa the start's best also won
+      the means outright (no tie), so nothing changes there.
 
     A tie (means within :data:`TIE` of the best) between a hypothesis that walks forwards and
     one that walks backwards (:func:`_walking_direction`, cosines beyond +-0.5) goes to the one
@@ -217,8 +227,8 @@ def _decide(trackers, frames, hooks, incumbent: int | None = None):
     k = int(np.argmin(means))
     tied = [j for j, m in enumerate(means) if m - means[k] <= TIE * abs(means[k])]
     if incumbent is not None and incumbent in tied and incumbent != k:
-        log.info("hypotheses %d and %d score within %.0f %%; %d goes on from its own track and "
-                 "is kept", k, incumbent, 100 * TIE, incumbent)
+        log.info("hypotheses %d and %d score within %.0f %%; %d has the better evidence behind "
+                 "it and is kept", k, incumbent, 100 * TIE, incumbent)
         k = incumbent
     body = getattr(trackers[k], "body", None)
     if body is not None and len(runs[0]) > 1:
@@ -407,9 +417,10 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 # each other hypothesis gets its own tracker and a generator derived from the
                 # seed, so the choice and what follows are reproducible
                 make = (lambda k: m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k])))
+                # a tie keeps the start's own best (see _decide)
                 tracker, decided = _choose_start(tracker, make, starts, first,
                                                  range(first, min(stop, first + decide_frames)),
-                                                 hooks)
+                                                 hooks, incumbent=0)
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
         bar = shown.frames(stop - first)
