@@ -37,12 +37,14 @@ def _multiview(path, body, n=4):
     return Dataset.open(path)
 
 
-def _depth(path, body, n=4, noise=0.005):
+def _depth(path, body, n=4, noise=0.005, surface=None):
+    """A depth dataset of ``body`` moving; ``surface``: another mesh of the same skeleton to
+    draw instead of the body's own (e.g. one without legs)."""
     rng = np.random.default_rng(0)
     P = smooth_motion(body, n, rng)
     cam = depth_camera_sr4000((0.3, 1.0, 3.2), (0.0, 0.9, 0.0))
-    z, _ = ref.render_candidates(body.mesh, body.skinning(P), cam.K, cam.R, cam.t, cam.width,
-                                 cam.height)
+    z, _ = ref.render_candidates(surface or body.mesh, body.skinning(P), cam.K, cam.R, cam.t,
+                                 cam.width, cam.height)
     meta = body_to_meta(body.skeleton, girth_scale=body.girth_scale)
     with DatasetWriter(path, "depth", FPS, [cam], body=meta) as w:
         for f in range(n):
@@ -297,3 +299,35 @@ def test_an_estimate_outside_usual_statures_falls_back_only_where_the_stature_is
     body, rec = resolve_body("estimate", _depth(tmp_path / "usual", _body(1.62)), None, ctx=ctx,
                              rng=np.random.default_rng(0))
     assert "rejected" not in rec["estimate"] and body.skeleton.height() < 1.72
+    # without --dof the whole person (1.3-1.6 m of depth foreground) is tracked whole
+    assert body.dofs.preset == "full" and rec["estimate"]["framing"]["preset"] == "full"
+    assert min(rec["estimate"]["framing"]["heights_m"]) > body_estimate.SEATED_HEIGHT
+
+
+def test_framing_picks_the_upper_preset_for_a_subject_seen_from_the_waist_up(tmp_path, ctx,
+                                                                             caplog):
+    """Without ``--dof`` a subject whose observation is shorter than SEATED_HEIGHT (here the
+    trunk, arms and head of a 1.6 m person, the legs hidden as behind a desk: about 0.8 m of
+    depth foreground) is estimated and tracked with the ``upper`` preset, with a warning that
+    says how to override it; the rule itself on measured heights."""
+    from gltrack.track.bodies import resolve_body
+    from gltrack.track.body_estimate import SEATED_HEIGHT, framing_preset
+
+    assert framing_preset([0.26, 0.26, 0.28]) == "upper"  # the caliscope take's masks
+    assert framing_preset([1.46, 1.48, 1.58]) == "full"  # a simulated walk, depth
+    assert framing_preset([1.22, 1.24, 1.27]) == "full"  # the shortest whole body measured
+    assert framing_preset([0.5, 1.6, 1.7]) == "full"  # one frame's masks lost the legs
+    assert framing_preset([]) == "full" and framing_preset([np.nan]) == "full"
+    assert framing_preset([SEATED_HEIGHT - 0.01]) == "upper"
+    person = _body(1.6, 1.0)
+    legless = BodyModel.build(person.skeleton, "upper", girth_scale=1.0).mesh
+    ds = _depth(tmp_path / "seated", person, surface=legless)
+    caplog.clear()
+    body, rec = resolve_body("estimate", ds, None, ctx=ctx, rng=np.random.default_rng(0))
+    framing = rec["estimate"]["framing"]
+    assert body.dofs.preset == "upper" and framing["preset"] == "upper", framing
+    assert max(framing["heights_m"]) < SEATED_HEIGHT, framing
+    assert any("--dof full" in r.getMessage() for r in caplog.records)
+    # --dof given: no framing decision
+    body, rec = resolve_body("estimate", ds, "upper", ctx=ctx, rng=np.random.default_rng(0))
+    assert "framing" not in rec["estimate"]

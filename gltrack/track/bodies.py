@@ -96,7 +96,9 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
     dataset : gltrack.data.dataset.Dataset
         The dataset being tracked (its ``meta.json`` body record for ``"dataset"``).
     preset : str, optional
-        DOF preset overriding the recorded one (``--dof``).
+        DOF preset overriding the recorded one (``--dof``); without it an estimate picks
+        "upper" for a subject seen from the waist up, else "full"
+        (:func:`~gltrack.track.body_estimate.framing_preset`).
     ctx : moderngl.Context, needed for ``"estimate"``
     rng : numpy.random.Generator, for ``"estimate"`` (its automatic start)
     frames : (start, stop), optional, the tracked range (``"estimate"`` measures the body on its
@@ -122,7 +124,10 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
         if ctx is None:
             raise ValueError("--body estimate needs a GL context")
         start, stop = frames if frames is not None else (0, dataset.frames)
-        est = estimate_body(dataset, ctx, preset=preset or "full",
+        # without --dof the estimate picks the preset: "upper" for a subject seen from the
+        # waist up (a full body tracked on a seated subject's masks is lost at once: 7.6 m
+        # from the caliscope take's labelled joints, 0.37 m with "upper")
+        est = estimate_body(dataset, ctx, preset=preset or "auto",
                             frames=estimate_frames(dataset, start, stop),
                             rng=rng if rng is not None else np.random.default_rng(0),
                             report=report)
@@ -142,6 +147,8 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
         rec["estimate"] = {"frames": [int(f) for f in est.frames], "costs": est.costs,
                            "unit": est.unit, "seconds": float(est.seconds),
                            "evaluations": int(est.evaluations)}
+        if est.framing is not None:
+            rec["estimate"]["framing"] = est.framing
         if fell_back:
             rec["estimate"]["rejected"] = {"stature_m": round(float(est.skeleton.height()), 4),
                                            "girth_scale": round(float(est.girth_scale), 4)}

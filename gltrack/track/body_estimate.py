@@ -69,7 +69,7 @@ and frames (multi-view) or depth-cost area units (``area_unit`` patches, see
 
 Plugging it in (``gltrack track --body estimate``)::
 
-    est = estimate_body(dataset, ctx, preset=preset or "full", rng=np.random.default_rng(seed))
+    est = estimate_body(dataset, ctx, preset=preset or "auto", rng=np.random.default_rng(seed))
     body = est.body          # est.frames / est.poses: where the body was found
 """
 from __future__ import annotations
@@ -469,6 +469,9 @@ class BodyEstimate:
     floor : float or None, metres (world y): the floor no sole was let more than
         :data:`FLOOR_TOLERANCE` below (multi-view: the lowest bottom of the frames' visual
         hulls; None for depth and where the feet are hidden)
+    framing : dict or None, with ``preset="auto"``: the observation's height in each frame
+        (``heights_m``), the threshold (``seated_below_m``, :data:`SEATED_HEIGHT`) and the
+        preset chosen (:func:`framing_preset`)
     """
 
     skeleton: Skeleton
@@ -482,14 +485,16 @@ class BodyEstimate:
     seconds: float = 0.0
     evaluations: int = 0
     floor: float | None = None
+    framing: dict | None = None
 
     def summary(self) -> dict:
         """JSON-able record: proportions, height (m), girth scale, frames, costs, seconds,
-        floor (m or None)."""
+        floor (m or None), framing (dict or None)."""
         return {"height": self.skeleton.height(), "girth_scale": self.girth_scale,
                 "proportions": self.proportions.as_dict(), "frames": list(self.frames),
                 "costs": self.costs, "unit": self.unit, "seconds": self.seconds,
-                "evaluations": self.evaluations, "floor": self.floor}
+                "evaluations": self.evaluations, "floor": self.floor,
+                "framing": self.framing}
 
 
 #: Search schedule: (proportion, its first step). Order: the girth and the stature first (a
@@ -529,6 +534,26 @@ FLOOR_PENALTY = 1.0e5
 #: stature above its sole, the procedural one's 3.9 %: up to 4 cm at 1.75 m), plus the
 #: estimate of the lowest sole (within 1.6 cm of the mesh's lowest vertex)
 FLOOR_TOLERANCE = 0.05
+
+#: metres: a subject whose visual hull (or depth foreground) is shorter than this on the
+#: estimate's frames (median) is seen from the waist up, and ``preset="auto"`` estimates and
+#: tracks it with the ``"upper"`` preset. Whole bodies measure more: the simulated walk and hop
+#: 1.4-1.7 m (multi-view and depth), the Pose2Sim take 1.4-1.7 m, and the shortest measured,
+#: the simulated salsa dancer (MakeHuman subject), 1.22 m multi-view and 1.15-1.18 m depth.
+#: Seen above a desk (top ~0.73 m, seat ~0.45 m), an adult's trunk and head (sitting height
+#: 0.8-0.95 m) show 0.5-0.7 m; the caliscope take measures 0.09-0.28 m (its masks hold the face
+#: and hands). Children under about 1 m would be taken for seated: pass ``--dof full``.
+SEATED_HEIGHT = 0.9
+
+
+def framing_preset(heights) -> str:
+    """The DOF preset for a subject whose observation is ``heights`` (metres, one per frame)
+    tall: ``"upper"`` when their median is under :data:`SEATED_HEIGHT` (seen from the waist
+    up), else ``"full"``; ``"full"`` without any measurement."""
+    h = np.asarray(heights, dtype=np.float64)
+    if h.size == 0 or not np.all(np.isfinite(h)):
+        return "full"
+    return "upper" if float(np.median(h)) < SEATED_HEIGHT else "full"
 
 #: DOFs a candidate body's pose re-fit leaves alone: twists about a limb's own axis and the
 #: hands' and feet's small rotations barely change a silhouette or a depth surface.
@@ -744,7 +769,9 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
     ctx : moderngl.Context
     preset : str, DOF preset of the returned body (the search uses "full": a body is measured
         better with all its joints free; except a preset that hides parts,
-        :data:`gltrack.body.dofs.HIDDEN_PARTS`, whose hidden surface must stay out of the cost)
+        :data:`gltrack.body.dofs.HIDDEN_PARTS`, whose hidden surface must stay out of the cost);
+        "auto": "upper" for a subject seen from the waist up (its observation under
+        :data:`SEATED_HEIGHT` tall on the chosen frames, :func:`framing_preset`), else "full"
     frames : sequence of int, optional, the frames to use; default ``n_frames`` frames spread
         over the first ``span`` seconds. A first frame without a person is skipped (the next
         frames are tried, up to 30).
@@ -771,6 +798,7 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
     t0 = time.perf_counter()
     rng = rng if rng is not None else np.random.default_rng(0)
     template = StretchedTemplate(lod=TEMPLATE_LOD)
+    auto = preset == "auto"
     # the search's preset: "full", or a preset that hides parts (their DOFs fixed, their
     # surface not scored: hidden legs must not be fitted to the desk that hides them)
     search_preset = preset if preset in HIDDEN_PARTS else "full"
@@ -810,6 +838,27 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                                 "body from")
         chosen = sorted({first, *[f + first - chosen[0] for f in chosen
                                   if f + first - chosen[0] < dataset.frames]})
+        framing = None
+        if auto:
+            heights = [h_guess]
+            for f in chosen[1:]:
+                try:
+                    heights.append(views.measure(f)[0])
+                except NoPersonError:
+                    pass
+            preset = framing_preset(heights)
+            framing = {"heights_m": [round(float(h), 3) for h in heights],
+                       "seated_below_m": SEATED_HEIGHT, "preset": preset}
+            if preset == "upper":
+                log.warning("%s: the subject is %.2f m tall in frames %s (median; under %.1f m): "
+                            "seen from the waist up, so tracked with the 'upper' DOF preset "
+                            "(legs fixed, out of the fit); pass --dof full to fit the legs",
+                            dataset.path, float(np.median(heights)), chosen, SEATED_HEIGHT)
+            if preset in HIDDEN_PARTS:
+                search_preset = preset
+                tbody = BodyModel.build(template.skeleton, search_preset, template.lod,
+                                        mesh=template.mesh)
+                views.template_body = tbody
         # hidden feet are not held above the floor: the hull's bottom is then the desk's edge
         feet_hidden = any("foot" in p for p in HIDDEN_PARTS.get(search_preset, ()))
         search = _Search(views, template, tbody.dofs, dataset.fps, stands=not feet_hidden)
@@ -870,6 +919,6 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                  "evaluations; floor %s)", skeleton.height(), shape.girth, chosen, seconds,
                  search.evaluations, "none" if floor is None else f"y = {floor:.3f} m")
         return BodyEstimate(skeleton, float(shape.girth), body, shape, chosen, poses, costs,
-                            views.unit, seconds, search.evaluations, floor)
+                            views.unit, seconds, search.evaluations, floor, framing)
     finally:
         views.release()
