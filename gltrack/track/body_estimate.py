@@ -841,11 +841,16 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
         framing = None
         if auto:
             heights = [h_guess]
+            # measured here only to decide; the floor (multi-view: the lowest hull bottom so
+            # far) stays as it was, so a full-body estimate is the one without the decision
+            floor = getattr(views, "floor", None)
             for f in chosen[1:]:
                 try:
                     heights.append(views.measure(f)[0])
                 except NoPersonError:
                     pass
+            if floor is not None:
+                views.floor = floor
             preset = framing_preset(heights)
             framing = {"heights_m": [round(float(h), 3) for h in heights],
                        "seated_below_m": SEATED_HEIGHT, "preset": preset}
