@@ -92,3 +92,79 @@ def test_upper_preset_keeps_the_seated_pelvis_upright():
         if n not in ("pelvis_rx", "pelvis_rz"):
             j = full.index(n)
             assert (up.lower[i], up.upper[i]) == (full.lower[j], full.upper[j]), n
+
+
+def test_hold_seat_narrows_this_bodys_root_limits_only():
+    """The seat box narrows the pelvis translation limits of one body in place (a state space
+    built before sees it, as the trackers' samplers do); another body keeps its limits; a bad
+    box is refused with its name."""
+    import pytest
+
+    from gltrack.sample import StateSpace
+    from gltrack.track.bodies import SEAT_REACH, hold_seat, seat_of
+
+    body, other = BodyModel.build(preset="upper"), BodyModel.build(preset="upper")
+    space = StateSpace.from_dofs(body.dofs)
+    x0 = body.dofs.zero(body.skeleton)
+    x0[:3] = (0.2, 0.5, -0.3)
+    seat = seat_of(x0)
+    assert seat["reach"] == SEAT_REACH
+    np.testing.assert_allclose(seat["low"], x0[:3] - SEAT_REACH)
+    hold_seat(body, seat)
+    far = np.repeat(x0[None], 2, axis=0)
+    far[0, :3] += 1.0
+    far[1, :3] -= 1.0
+    for clamped in (space.clamp(far), body.dofs.validate(far)):
+        np.testing.assert_allclose(clamped[0, :3], x0[:3] + SEAT_REACH)
+        np.testing.assert_allclose(clamped[1, :3], x0[:3] - SEAT_REACH)
+        np.testing.assert_allclose(clamped[:, 3:], far[:, 3:])  # rotations untouched
+    assert np.all(other.dofs.upper[:3] > x0[:3] + 1.0)
+    # a wider box never widens the limits
+    hold_seat(body, seat_of(x0, 5.0))
+    np.testing.assert_allclose(body.dofs.upper[:3], x0[:3] + SEAT_REACH)
+    for bad in ({"low": [0, 0]}, {"low": [0, 0, 0], "high": [1, 1, -1]}, [1, 2, 3]):
+        with pytest.raises(ValueError, match="body.json: field 'seat'"):
+            hold_seat(other, bad, where="body.json: field 'seat'")
+
+
+def test_a_seated_run_holds_the_pelvis_where_it_started_and_on_resume(tmp_path):
+    """``track`` with the upper preset records the seat its start found in ``body.json`` and
+    keeps every frame's pelvis in it, also after a resume, while the rendered subject slides
+    0.3 m sideways (so the hold is what keeps it: the other joints still follow the arms)."""
+    import json
+
+    from gltrack.bench.multiview import RING, render_dataset
+    from gltrack.bench.rigs import ring_cameras
+    from gltrack.track.bodies import SEAT_REACH
+    from gltrack.track.runner import track
+
+    body = BodyModel.build(preset="upper")
+    d = body.dofs
+    n = 5
+    P = np.repeat(d.zero(body.skeleton)[None], n, axis=0)
+    P[:, 1] = 0.98
+    P[:, 0] = np.linspace(0.0, 0.3, n)  # slides along x
+    P[:, d.index("l_shoulder_rz")] = np.linspace(-1.2, -0.3, n)
+    P = d.validate(P)
+    ds = tmp_path / "ds"
+    cams = ring_cameras((0.0, 0.9, 0.0), **dict(RING, radius=3.0))
+    render_dataset(ds, body, P, cams, 30.0, np.random.default_rng(1))
+    out = tmp_path / "res"
+    opts = {"particles": 40, "tile": 64, "appearance": False}
+    track(ds, "hps", out, options=opts, init="groundtruth", body="dataset", progress=False)
+    seat = json.loads((out / "body.json").read_text())["seat"]
+    np.testing.assert_allclose(seat["low"], P[0, :3] - SEAT_REACH)
+    params = np.array([json.loads(line)["params"] for line in open(out / "frames.jsonl")])
+    assert len(params) == n
+    assert np.all(np.abs(params[:, :3] - P[0, :3]) <= SEAT_REACH + 1e-9), params[:, :3]
+    assert params[-1, 0] > P[0, 0] + 0.05  # it leans on the box's edge towards the subject
+    # resume after two frames: the seat comes back from body.json
+    lines = open(out / "frames.jsonl").read().splitlines(keepends=True)
+    (out / "frames.jsonl").write_text("".join(lines[:2]))
+    for f in out.glob("checkpoint*"):
+        f.unlink()
+    track(ds, "hps", out, options=opts, init="groundtruth", body="dataset", progress=False,
+          resume=True)
+    params = np.array([json.loads(line)["params"] for line in open(out / "frames.jsonl")])
+    assert len(params) == n
+    assert np.all(np.abs(params[:, :3] - P[0, :3]) <= SEAT_REACH + 1e-9), params[:, :3]

@@ -275,9 +275,10 @@ def recorded_body(result):
 
 def _body_difference(a: dict, b: dict):
     """The first field (dotted) in which two body records differ, ignoring where the body came
-    from (``source``, and ``estimate``: what a body estimate did)."""
+    from (``source``, and ``estimate``: what a body estimate did) and where the run's start put a
+    seated subject (``seat``)."""
     for key in sorted(set(a) | set(b)):
-        if key in ("source", "estimate"):
+        if key in ("source", "estimate", "seat"):
             continue
         va, vb = a.get(key), b.get(key)
         if isinstance(va, dict) and isinstance(vb, dict):
@@ -520,6 +521,11 @@ class ResultsWriter:
         if diff:
             raise ValueError(f"{path}: field {diff!r} differs from the body this run would use "
                              f"(source {mine.get('source')!r}); cannot resume with another body")
+
+    def update_body(self, record: dict) -> None:
+        """Rewrite ``body.json`` with ``record`` (atomically): what the run learnt about the body
+        after it began (the seat its start found, :func:`gltrack.track.bodies.seat_of`)."""
+        _write_body(self.out, json.loads(json.dumps(record)))
 
     @property
     def done_frames(self):

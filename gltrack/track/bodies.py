@@ -49,11 +49,72 @@ def unusual_stature(height: float) -> str | None:
             "(--body FILE.json)")
 
 
+def seated(preset: str) -> bool:
+    """Whether DOF ``preset`` is for a subject seen from the waist up, seated behind a desk: it
+    hides the legs (``"upper"``, :data:`gltrack.body.dofs.HIDDEN_PARTS`)."""
+    return bool(HIDDEN_PARTS.get(preset))
+
+
 def stature_extrapolated(preset: str) -> bool:
     """Whether a body estimated with DOF ``preset`` infers its stature instead of seeing it:
     the preset hides parts (``"upper"``: the legs of a seated subject), so the estimate fits the
     trunk, arms and head and the legs follow from proportions."""
-    return bool(HIDDEN_PARTS.get(preset))
+    return seated(preset)
+
+
+#: metres: how far a seated subject's pelvis may move from where the start put it, on each
+#: axis (``--dof upper``, :func:`hold_seat`). Seated, the hips stay on the chair: leaning and
+#: turning are rotations of the spine and the pelvis, which stay free, and shifting on the seat
+#: moves the hip joints by a few centimetres. A free pelvis lets the whole body drift to explain
+#: masks that hold the hands and face only (a seated person's still torso is in the sequence's
+#: temporal background): on the caliscope take the pelvis wandered 0.25 m from the start
+#: (median over the frames) and the joints were 366 mm from the labelled ones (median), 244 mm
+#: held to 0.1 m.
+SEAT_REACH = 0.1
+
+
+def seat_of(root, reach: float = SEAT_REACH) -> dict:
+    """The seat of a seated subject whose start puts the pelvis at ``root``.
+
+    Parameters
+    ----------
+    root : (>= 3,) float, a pose (its first three values: the pelvis position, metres)
+    reach : float, metres on each axis
+
+    Returns
+    -------
+    dict ``{"low": [3 floats], "high": [3 floats], "reach": reach}``: the box the pelvis stays
+    in, for ``body.json`` and :func:`hold_seat`
+    """
+    r = np.asarray(root, dtype=np.float64)[:3]
+    if not np.all(np.isfinite(r)) or not reach > 0:
+        raise ValueError(f"seat_of: root {r} and reach {reach} must be finite, reach positive")
+    return {"low": (r - reach).tolist(), "high": (r + reach).tolist(), "reach": float(reach)}
+
+
+def hold_seat(body: BodyModel, seat: dict, where: str = "seat") -> None:
+    """Keep ``body``'s pelvis in the box ``seat`` (:func:`seat_of`), in place.
+
+    Narrows the translation limits of ``body.dofs`` (never widens them). Every tracker, sampler
+    and search of the body clamps to those arrays (the samplers' state spaces hold the same
+    arrays), so it holds for a tracker built before the call as for one built after.
+
+    Raises
+    ------
+    ValueError
+        ``seat`` is not such a box (``where`` names it in the message).
+    """
+    try:
+        lo = np.asarray(seat["low"], dtype=np.float64)
+        hi = np.asarray(seat["high"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{where}: must hold 'low' and 'high', 3 numbers each") from None
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)) \
+            or np.any(lo > hi):
+        raise ValueError(f"{where}: 'low' and 'high' must be 3 finite numbers, low <= high")
+    d = body.dofs
+    d.lower[:3] = np.minimum(np.maximum(d.lower[:3], lo), d.upper[:3])
+    d.upper[:3] = np.maximum(np.minimum(d.upper[:3], hi), d.lower[:3])
 
 
 def fallback_body(body: BodyModel) -> BodyModel:

@@ -27,7 +27,7 @@ from gltrack.export.bvh import write_params_bvh
 from gltrack.render.engine import ENGINE_STATS
 
 from . import checkpoint
-from .bodies import resolve_body
+from .bodies import hold_seat, resolve_body, seat_of, seated
 from .base import NoPersonError
 from .lost import LossWatch
 from .registry import method as lookup
@@ -375,6 +375,12 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
                                           rng=np.random.default_rng([seed, 7]),
                                           report=shown.say)
+        if resume and (Path(out) / BODY).is_file():
+            # the seat the run's start found (a seated subject): the same limits as before
+            seat = load_body_record(out)[1].get("seat")
+            if seat is not None:
+                hold_seat(body, seat, where=f"{Path(out) / BODY}: field 'seat'")
+                body_rec = dict(body_rec, seat=seat)
         rng = np.random.default_rng(seed)
         tracker = m.tracker(ds, body, ctx, opts, rng)
         writer = ResultsWriter(out, method, list(body.skeleton.names), list(body.markers.names),
@@ -411,6 +417,14 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             shown.say(f"--init {init}: finding the start")
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
                                         check_start)
+            if seated(body.dofs.preset):
+                # seen from the waist up: seated, so the pelvis stays near where it starts
+                # (SEAT_REACH); body.json records the seat, a resumed run holds it too
+                body_rec = dict(body_rec, seat=seat_of(starts[0]))
+                hold_seat(body, body_rec["seat"])
+                writer.update_body(body_rec)
+                log.info("seated: the pelvis is held within %.2f m of %s", body_rec["seat"]["reach"],
+                         np.round(np.asarray(starts[0][:3]), 3).tolist())
             tracker.start(first, starts[0])
             if len(starts) > 1 and decide_frames > 0:
                 shown.say(f"--init {init}: {len(starts)} start hypotheses, each "
