@@ -187,7 +187,8 @@ def resolve_body(spec: str, dataset, preset: str | None, *, ctx=None, rng=None,
         start, stop = frames if frames is not None else (0, dataset.frames)
         # without --dof the estimate picks the preset: "upper" for a subject seen from the
         # waist up (a full body tracked on a seated subject's masks is lost at once: 7.6 m
-        # from the caliscope take's labelled joints, 0.37 m with "upper")
+        # from the caliscope take's labelled joints, 0.37 m with "upper", 0.24 m with the
+        # pelvis held on its seat as well, see hold_seat)
         est = estimate_body(dataset, ctx, preset=preset or "auto",
                             frames=estimate_frames(dataset, start, stop),
                             rng=rng if rng is not None else np.random.default_rng(0),
