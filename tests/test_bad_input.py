@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gltrack.body.dofs import make_dofs
+from gltrack.body.skeleton import default_skeleton
 from gltrack.cli import main
 from gltrack.data.results import ResultsWriter
 from gltrack.export.bvh import params_to_bvh
@@ -466,6 +468,18 @@ def test_a_pose_file_of_the_wrong_shape_is_refused_before_the_body_estimate(base
                          str(_npy(tmp_path / f"{dof}.npy", (7,)))))
         assert rc == 1 and not estimated
         assert not (tmp_path / "out").exists()
+    # without --dof the estimate picks "full" or "upper" from the framing: a file of neither
+    # size is refused first, a file sized for "upper" goes on to the estimate
+    ds = _ds_with_background(base, tmp_path / "auto")
+    assert main(_track(ds, "--init", str(_npy(tmp_path / "auto.npy", (7,))))) == 1
+    assert not estimated and not (tmp_path / "out").exists()
+    upper = make_dofs(default_skeleton(), "upper").size
+    assert upper != make_dofs(default_skeleton(), "full").size
+    try:
+        main(_track(ds, "--init", str(_npy(tmp_path / "upper.npy", (upper,)))))
+    except RuntimeError:
+        pass  # the stand-in estimate's error, whether or not the CLI turns it into rc 1
+    assert len(estimated) == 1
 
 
 @pytest.mark.parametrize("case", ["track-meta-not-json", "synth-frames-beyond-clip",

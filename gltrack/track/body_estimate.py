@@ -545,6 +545,9 @@ FLOOR_TOLERANCE = 0.05
 #: and hands). Children under about 1 m would be taken for seated: pass ``--dof full``.
 SEATED_HEIGHT = 0.9
 
+#: the presets :func:`framing_preset` chooses between
+FRAMING_PRESETS = ("full", "upper")
+
 
 def framing_preset(heights) -> str:
     """The DOF preset for a subject whose observation is ``heights`` (metres, one per frame)

@@ -28,6 +28,7 @@ from gltrack.render.engine import ENGINE_STATS
 
 from . import checkpoint
 from .bodies import hold_seat, resolve_body, seat_of, seated
+from .body_estimate import FRAMING_PRESETS
 from .base import NoPersonError
 from .lost import LossWatch
 from .registry import method as lookup
@@ -111,9 +112,10 @@ def initial_pose(init, dataset, body, tracker, start: int) -> np.ndarray:
     return read_pose_file(init, body.dofs.size)
 
 
-def read_pose_file(init, size: int) -> np.ndarray:
-    """(``size``,) the first pose of the .npy/.npz pose file ``init`` (a pose (D,), poses
-    (N, D), or an .npz with ``params``); ValueError naming the file when it is not one."""
+def read_pose_file(init, size) -> np.ndarray:
+    """(D,) the first pose of the .npy/.npz pose file ``init`` (a pose (D,), poses (N, D), or
+    an .npz with ``params``); ValueError naming the file when it is not one, or when D is not
+    ``size`` (an int, or a tuple of the sizes accepted)."""
     path = Path(init)
     if not path.is_file():
         raise ValueError(f"--init: {init!r} is neither groundtruth, auto nor a pose file")
@@ -124,8 +126,10 @@ def read_pose_file(init, size: int) -> np.ndarray:
         arr = arr["params"]
     arr = np.asarray(arr, dtype=np.float64)
     arr = arr[0] if arr.ndim == 2 else arr
-    if arr.shape != (size,):
-        raise ValueError(f"{path}: pose has shape {arr.shape}, expected ({size},)")
+    sizes = (size,) if np.isscalar(size) else tuple(size)
+    if arr.ndim != 1 or arr.shape[0] not in sizes:
+        expected = " or ".join(f"({n},)" for n in sizes)
+        raise ValueError(f"{path}: pose has shape {arr.shape}, expected {expected}")
     return arr
 
 
@@ -369,8 +373,11 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         else:  # the --body choice -> the BodyModel; the estimate's generator is its own
             if body == "estimate" and init not in ("auto", "groundtruth"):
                 # a pose file that cannot start this body is refused now, not after the
-                # estimate (a minute or more); an estimated body has the canonical joints
-                read_pose_file(init, make_dofs(default_skeleton(), preset or "full").size)
+                # estimate (a minute or more); an estimated body has the canonical joints.
+                # Without --dof the estimate picks the preset from the framing, so a file
+                # sized for either preset it can pick passes here and is checked again after
+                read_pose_file(init, tuple(make_dofs(default_skeleton(), p).size
+                                           for p in ((preset,) if preset else FRAMING_PRESETS)))
             shown.say(f"--body {body}")
             body, body_rec = resolve_body(body, ds, preset, ctx=ctx, frames=(start, stop),
                                           rng=np.random.default_rng([seed, 7]),
