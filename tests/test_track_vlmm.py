@@ -236,3 +236,35 @@ def test_search_fits_from_both_headings(setup):
         both = tr.evidence.fit_loglik
         one = fit(starts[:2])
     assert both >= one
+
+
+def test_annealing_layers_after_the_prior(setup):
+    """``layers`` > 1: the prior predicts the first layer and annealing layers weigh the same
+    frame's blob evidence again (fitted once a frame). Every frame costs particles x layers
+    evaluations, the VLMM histories stay one per particle, and the track differs from the
+    one-layer filter's and beats a fixed pose."""
+    root, body, _, test = setup
+    gt = body.joints(test)
+    fixed = np.linalg.norm(gt[:1] - gt[1:], axis=2).mean()
+    err = {}
+    with Dataset.open(root / "ds") as ds:
+        for layers in (1, 3):
+            tr = tv.VlmmTracker(ds, body, None, tv.VlmmOptions(
+                model=str(root / "model.npz"), particles=40, layers=layers, max_depth=3,
+                colour=False, lost_frames=0), np.random.default_rng(2))
+            fits = []
+            fit = tr.evidence.fit
+            tr.evidence.fit = lambda poses: (fits.append(len(poses)), fit(poses))[1]
+            tr.start(0, test[0])
+            ests = [tr.step(f) for f in range(1, N_FRAMES)]
+            assert [e.evaluations for e in ests] == [40 * layers] * len(ests)
+            assert len(fits) == len(ests)  # one blob fit a frame, whatever the layers
+            assert tr.prior.X.shape[0] == len(tr.P) == 40
+            assert np.array_equal(tr.prior.X[:, :tr.prior._a], tr.P[:, tr.prior.idx])
+            err[layers] = np.linalg.norm(body.joints(np.stack([e.params for e in ests]))
+                                         - gt[1:], axis=2).mean()
+    assert err[1] != err[3]
+    assert err[3] < 0.75 * fixed, (err, fixed)
+    for bad in ({"layers": 0}, {"alpha": 1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            tv.VlmmOptions(model="m.npz", **bad).validate()

@@ -25,8 +25,8 @@ def add_arguments(p):
     p.add_argument("--particles", type=int, metavar="N",
                    help="particles per frame (particle filters; overrides the config file)")
     p.add_argument("--layers", type=int, metavar="L",
-                   help="annealing layers (apf, apf-blobs) / torso layers (hps) (overrides the config "
-                        "file)")
+                   help="annealing layers (apf, apf-blobs; vlmm: after the behaviour model's "
+                        "prediction, default 1) / torso layers (hps) (overrides the config file)")
     p.add_argument("--prior", choices=["diffusion", "vlmm"],
                    help="motion model of the multi-view particle filters (vlmm needs --behaviour)")
     p.add_argument("--behaviour", metavar="MODEL.npz",

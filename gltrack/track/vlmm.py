@@ -15,7 +15,11 @@ A particle filter whose motion prior is a learnt behaviour model (``gltrack lear
   the two evaluations);
 * :class:`gltrack.sample.SIRFilter` (tempered to that survival rate) predicts with the prior,
   weighs and resamples; the estimate is the weighted mean (option estimate; "best" is the
-  paper's maximum of the posterior).
+  paper's maximum of the posterior). With ``layers`` > 1 an annealed particle filter (Deutscher)
+  takes its place: the prior's prediction is the first layer, the later layers re-weigh the
+  same frame's evidence with their own diffusion. The paper's introduction speaks of integrating
+  annealed particle filtering with the VLMM, its tracking section resamples once a frame (SIR):
+  the default is one layer.
 
 Initialisation (``--init auto``) and recovery follow the paper: the body is placed at the
 centroid of the voxels carved from the masks and every cluster mean is tried at ``headings``
@@ -38,7 +42,8 @@ from gltrack.motion.behaviour import BehaviourModel
 from gltrack.motion.vlmm_prior import VlmmPrior
 from gltrack.observe.blob_evidence import ColourAcquisition, placed_candidates, stage_seconds
 from gltrack.observe.multiview import MultiviewObservation, SilhouetteLikelihood
-from gltrack.sample import SIRFilter, StateSpace, cost_weights, systematic_resample
+from gltrack.sample import (AnnealedParticleFilter, SIRFilter, StateSpace, cost_weights,
+                            systematic_resample)
 from gltrack.sample.weights import Weights, annealing_exponent
 
 from .base import (FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state,
@@ -82,7 +87,12 @@ class VlmmOptions(BlobEvidenceOptions):
         DOF sigmas); see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
     root_scale, other_scale : multipliers of the root's noise and of the DOF sigmas diffusing
         the angles the model does not cover
-    survival : target effective sample size / N that sets the weight exponent
+    survival : target effective sample size / N that sets the weight exponent (one layer)
+    layers : 1 (default, the paper's SIR filter) or the annealing layers per frame:
+        evaluations per frame = particles * layers; the behaviour prior predicts the first
+        layer, every later one diffuses with the particles' own spread
+    alpha : target survival rate of each annealing layer (``layers`` > 1; Deutscher's 0.5, as
+        ``apf-blobs``)
     estimate : weighted "mean" (default: steadier under a noisy likelihood; salsa, condensation
         1000: 47 mm against 80 mm) or "best" particle (the paper's maximum of the posterior)
     tile : silhouette tile side, pixels (power of two)
@@ -111,6 +121,8 @@ class VlmmOptions(BlobEvidenceOptions):
     root_scale: float = 1.0
     other_scale: float = 1.0
     survival: float = 0.3
+    layers: int = 1
+    alpha: float = 0.5
     estimate: str = "mean"
     tile: int = 64
     fit_inits: int = 3
@@ -125,9 +137,10 @@ class VlmmOptions(BlobEvidenceOptions):
             *choice(self, "velocity", ("ar1", "walk")), *choice(self, "root", ("ar1", "walk")),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
+            *within(self, "alpha", 0, 1, open_lo=True, open_hi=True),
             *at_least(self, 0, "lam", "lam_dx", "root_scale", "other_scale", "lost_threshold",
                       "lost_frames", "fit_prototypes"),
-            *at_least(self, 1, "fit_inits", "headings")]
+            *at_least(self, 1, "fit_inits", "headings", "layers")]
         if not self.model:
             bad.append("model = \"\": method vlmm needs a behaviour model: --behaviour MODEL.npz "
                        "(or model = 'MODEL.npz' in --config), learnt by gltrack learn")
@@ -148,8 +161,11 @@ class VlmmTracker(Tracker):
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
                                lam_dx=opt.lam_dx, root_scale=opt.root_scale, velocity=opt.velocity,
                                root=opt.root, other_scale=opt.other_scale)
-        # the prior is the whole motion step: the filter adds no diffusion of its own
-        self.sampler = SIRFilter(StateSpace.from_dofs(body.dofs, dataset.fps), alpha=opt.survival)
+        # the prior is the whole motion step: the filter adds no diffusion of its own (the
+        # annealing layers after the first diffuse by the particles' spread, not these sigmas)
+        space = StateSpace.from_dofs(body.dofs, dataset.fps)
+        self.sampler = (SIRFilter(space, alpha=opt.survival) if opt.layers == 1 else
+                        AnnealedParticleFilter(space, layers=opt.layers, alpha=opt.alpha))
         # the voxels place the candidates of initialisation and recovery in both evaluations
         self.evidence = opt.evidence(dataset, body)
         self.cameras = self.evidence.cameras
@@ -292,7 +308,9 @@ class VlmmTracker(Tracker):
         costs = []
 
         def weigh(P):
-            if self.silhouette is None:
+            if self.silhouette is None and not costs:
+                # one blob fit a frame, from the predicted particles (the first call): the
+                # annealing layers that follow weigh against the same evidence
                 self._fit_from_clusters(P)
             costs.append(self.costs(frame, P))
             return cost_weights(costs[-1])
@@ -309,7 +327,10 @@ class VlmmTracker(Tracker):
         self.est = est
         self.colours.update(frame, est)
         self.P = res.particles
-        self.prior.select(res.ancestors)
+        if self.opt.layers == 1:
+            self.prior.select(res.ancestors)
+        else:  # the layers moved the particles since the prediction
+            self.prior.follow(res.particles)
         if self.opt.lost_frames > 0 and self._bad >= self.opt.lost_frames:
             evals += self._recover(frame)
             info["recovered"] = True
