@@ -12,10 +12,15 @@ def _row(method, rms, seed, fps=2.0, turned=0.0):
 
 
 def test_targets_and_tables():
-    p1 = {"vlmm_200": _summary([_row("vlmm", 0.08, 0), _row("vlmm", 0.09, 1)]),
+    # the annealed and equal-evaluation rows come first here: the targets still read the
+    # one-layer VLMM and the 5000-evaluation baselines
+    p1 = {"vlmm_200x5": _summary([_row("vlmm", 0.03, 0)]),
+          "apf_200x5": _summary([_row("apf-blobs", 0.03, 0)]),
+          "vlmm_200": _summary([_row("vlmm", 0.08, 0), _row("vlmm", 0.09, 1)]),
           "condensation_5000": _summary([_row("condensation", 0.045, 0)]),
           "apf_1000x5": _summary([_row("apf-blobs", 0.07, 0)])}
-    p2 = {"vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0, turned=0.25),
+    p2 = {"vlmm_1000x5": _summary([_row("vlmm", 0.07, 0, fps=3.0)]),
+          "vlmm_1000": _summary([_row("vlmm", 0.095, 0, fps=11.0, turned=0.25),
                                  _row("vlmm", 0.095, 1, fps=11.0, turned=0.31)]),
           "vlmm_1000_colour": _summary([_row("vlmm", 0.097, 0, fps=9.5)]),
           "condensation_5000": _summary([_row("condensation", 0.2, 0)])}

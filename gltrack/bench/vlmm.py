@@ -383,16 +383,20 @@ def _vlmm_targets(out: dict, quick: bool) -> dict:
     """The issue's targets evaluated on the measured rows (None where a run is missing)."""
     p1, p2 = out.get("protocol1", {}), out.get("protocol2", {})
 
-    def rms(tab, prefix):
-        return next((r["rms_joint_error_m"] for k, r in tab.items() if k.startswith(prefix)),
+    def rms(tab, label):
+        """The row ``label``, else the first whose label starts with it (quick runs' counts)."""
+        if label in tab:
+            return tab[label]["rms_joint_error_m"]
+        return next((r["rms_joint_error_m"] for k, r in tab.items() if k.startswith(label)),
                     None)
 
     # the paper's comparison: the 5000-evaluation baselines (not the equal-evaluation apf_200x5)
     v200, cond = rms(p1, "vlmm_200"), rms(p1, "condensation")
     apf = rms(p1, "apf" if quick else "apf_1000x5")
     v_sys = rms(p2, "vlmm_1000" if not quick else "vlmm_200")
+    # the one-layer filter's rate (the annealed rows spend several evaluations a particle)
     loop = next((r["fps"] for k, r in p2.items() if k.startswith("vlmm")
-                 and not k.endswith("_colour")), None)
+                 and not k.endswith(("_colour", "x5"))), None)
     loop_colour = next((r["fps"] for k, r in p2.items() if k.startswith("vlmm")
                         and k.endswith("_colour")), None)
     rec = next(iter(out.get("recovery", {}).values()), {}).get("frames_to_recover")
