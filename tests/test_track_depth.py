@@ -211,6 +211,12 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys
     assert err < 0.06, err
     assert "start hypotheses tracked over 6 frames" in caplog.text
     assert incumbents == [0]
+    # the first frame records what the choice rested on
+    first = json.loads((tmp_path / "res" / "frames.jsonl").read_text().splitlines()[0])
+    verdict = first["info"]["start"]
+    assert verdict["hypotheses"] == len(verdict["means"]) >= 2 and verdict["frames"] == 6
+    assert verdict["measure"] == "quality" and verdict["turned_deg"][verdict["kept"]] == 0.0
+    assert max(abs(t) for t in verdict["turned_deg"]) > 90  # the twin is turned round
     bar = capsys.readouterr().err
     assert "--init auto: finding the start" in bar
     assert "start hypotheses, each tracked 6 frames" in bar
@@ -256,6 +262,41 @@ def test_a_restart_keeps_the_going_track_on_a_tie():
     assert _decide([Scripted(tied), Scripted(1.0)], range(3), [], incumbent=0)[0] == 0
     assert _decide([Scripted(1.0 + 2 * TIE), Scripted(1.0)], range(3), [], incumbent=0)[0] == 1
     assert _decide([Scripted(1.0), Scripted(tied)], range(3), [], incumbent=1)[0] == 1
+
+
+def test_a_tied_start_is_recorded_and_said(caplog):
+    """The choice between start hypotheses is recorded (means, kept, how far each is turned
+    from the kept one) and flagged uncertain when another came within the tie margin; the
+    runner's warning says so and names the frames. A clear winner is not flagged."""
+    import logging
+
+    from gltrack.body.model import BodyModel
+    from gltrack.track.base import FrameEstimate
+    from gltrack.track.runner import TIE, _verdict, _warn_uncertain_start
+
+    body = BodyModel.build()
+    yaw = body.dofs.index("pelvis_ry")
+
+    def run(heading, quality, n=5):
+        p = np.zeros(body.dofs.size)
+        p[1], p[yaw] = 0.98, heading
+        return [(FrameEstimate(p, 0.0, 1, info={"quality": quality}), 0.1) for _ in range(n)]
+
+    class Holder:  # the verdict reads the kept tracker's body only
+        pass
+
+    trackers = [Holder(), Holder()]
+    trackers[0].body = trackers[1].body = body
+    tied = _verdict(trackers, [run(0.3, 0.40), run(0.3 + np.pi, 0.40 * (1 + 0.5 * TIE))], 0)
+    assert tied["uncertain"] and tied["kept"] == 0 and tied["measure"] == "quality"
+    assert tied["means"] == [0.4, round(0.4 * (1 + 0.5 * TIE), 4)]
+    assert tied["turned_deg"][0] == 0.0 and abs(tied["turned_deg"][1]) == 180.0
+    clear = _verdict(trackers, [run(0.3, 0.40 * (1 + 3 * TIE)), run(-1.0, 0.40)], 1)
+    assert not clear["uncertain"] and clear["turned_deg"] == [74.5, 0.0]
+    with caplog.at_level(logging.WARNING, logger="gltrack.track.runner"):
+        _warn_uncertain_start(7, tied)
+    assert "frame 7: the 2 start hypotheses (turned 0, 180 deg from the kept one) explained " \
+        "frames 7-11 about equally well" in caplog.text
 
 
 def test_a_tie_between_twins_goes_to_the_one_walking_forwards():

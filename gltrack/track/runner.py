@@ -222,13 +222,7 @@ def _decide(trackers, frames, hooks, incumbent: int | None = None):
     the scores alone.
     """
     runs = [[_step(tr, f, hooks) for f in frames] for tr in trackers]
-    # the frames' quality where every frame has one: the score is measured against what each
-    # tracker itself observes (a multi-view tracker's colour model decides which foreground it
-    # scores), the quality also counts what that observation left out
-    quality = all(isinstance((e.info or {}).get("quality"), (int, float)) for run in runs
-                  for e, _ in run)
-    means = [float(np.nanmean([e.info["quality"] if quality else e.score for e, _ in run]))
-             for run in runs]
+    means, measure = _means(runs)
     k = int(np.argmin(means))
     tied = [j for j, m in enumerate(means) if m - means[k] <= TIE * abs(means[k])]
     if incumbent is not None and incumbent in tied and incumbent != k:
@@ -245,9 +239,44 @@ def _decide(trackers, frames, hooks, incumbent: int | None = None):
                      "kept", k, j, 100 * TIE, j)
             k = j
     log.info("start hypotheses tracked over %d frames: mean %s %s; kept %d",
-             len(runs[0]), "quality" if quality else "scores",
-             ", ".join(f"{m:.4g}" for m in means), k)
+             len(runs[0]), measure, ", ".join(f"{m:.4g}" for m in means), k)
     return k, runs
+
+
+def _means(runs) -> tuple[list[float], str]:
+    """Each run's mean per-frame figure (lower = better) and its name: ``"quality"`` where
+    every frame of every run has one, else ``"score"``.
+
+    The quality is preferred: the score is measured against what each tracker itself observes
+    (a multi-view tracker's colour model decides which foreground it scores), the quality also
+    counts what that observation left out.
+    """
+    quality = all(isinstance((e.info or {}).get("quality"), (int, float)) for run in runs
+                  for e, _ in run)
+    means = [float(np.nanmean([e.info["quality"] if quality else e.score for e, _ in run]))
+             for run in runs]
+    return means, "quality" if quality else "score"
+
+
+def _verdict(trackers, runs, k: int) -> dict:
+    """What a choice between start hypotheses rested on (JSON-able, for the kept first frame's
+    ``info``): how many hypotheses over how many frames, each one's mean, which was kept,
+    whether another came within :data:`TIE` of it (``uncertain``: the evidence hardly told them
+    apart and a tie rule decided) and, where the body has a heading DOF, how far each
+    hypothesis's first pose is turned from the kept one's (degrees, -180..180)."""
+    means, measure = _means(runs)
+    lowest = min(means)
+    uncertain = any(j != k and abs(m - means[k]) <= TIE * abs(lowest) for j, m in enumerate(means))
+    rec = {"hypotheses": len(runs), "frames": len(runs[0]), "measure": measure,
+           "means": [round(m, 4) for m in means], "kept": int(k), "uncertain": bool(uncertain)}
+    body = getattr(trackers[k], "body", None)
+    if body is not None and "pelvis_ry" in body.dofs.names:
+        yaw = body.dofs.index("pelvis_ry")
+        ref = runs[k][0][0].params[yaw]
+        rec["turned_deg"] = [round(float(np.degrees(np.angle(np.exp(1j * (run[0][0].params[yaw]
+                                                                         - ref))))), 1)
+                             for run in runs]
+    return rec
 
 
 def _choose_start(tracker, make, starts, first: int, frames, hooks, incumbent=None):
@@ -259,6 +288,7 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks, incumbent=No
     -------
     tracker : the kept tracker
     decided : dict frame -> (estimate, seconds) of the kept tracker's frames
+    verdict : dict, what the choice rested on (:func:`_verdict`)
     """
     others = [make(k) for k in range(1, len(starts))]
     everyone = [tracker, *others]
@@ -272,7 +302,23 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks, incumbent=No
         raise
     for other in everyone[:k] + everyone[k + 1:]:
         other.close()
-    return everyone[k], dict(zip(frames, runs[k]))
+    return everyone[k], dict(zip(frames, runs[k])), _verdict(everyone, runs, k)
+
+
+def _warn_uncertain_start(first: int, verdict: dict) -> None:
+    """Say that the start hypotheses tied (``verdict`` from :func:`_verdict`): the kept one
+    rests on a tie rule, and a body tracked turned round is a whole take lost, so the user
+    should look before trusting it."""
+    means = ", ".join(f"{m:.3f}" for m in verdict["means"])
+    turned = verdict.get("turned_deg")
+    apart = "" if turned is None else " (turned " + ", ".join(f"{t:.0f}" for t in turned) + \
+        " deg from the kept one)"
+    log.warning("frame %d: the %d start hypotheses%s explained frames %d-%d about equally well "
+                "(mean %s %s, within %.0f %%); kept %d. A body and its turned-round twin fit "
+                "the images about equally well: look at the overlay (gltrack render) to see "
+                "that the body faces the right way", first, verdict["hypotheses"], apart, first,
+                first + verdict["frames"] - 1, verdict["measure"], means, 100 * TIE,
+                verdict["kept"])
 
 
 def _restart(tracker, make, frame: int, frames, hooks):
@@ -289,13 +335,13 @@ def _restart(tracker, make, frame: int, frames, hooks):
         log.warning("frame %d: lost, and no person to re-start from (%s)", frame, exc)
         return tracker, {}
     # hypothesis 0 is the lost tracker, going on from its own state
-    kept, decided = _choose_start(tracker, make, [None, *starts], frame, frames, hooks,
-                                  incumbent=0)
+    kept, decided, verdict = _choose_start(tracker, make, [None, *starts], frame, frames, hooks,
+                                           incumbent=0)
     first = min(decided) if decided else None
     if first is not None:
         restarted = kept is not tracker
         decided[first][0].info["restart"] = {"frame": frame, "hypotheses": len(starts),
-                                              "restarted": restarted}
+                                              "restarted": restarted, "decision": verdict}
         log.warning("frame %d: the body looked lost for a while; %s", frame,
                     "re-started from the automatic start" if restarted
                     else "the current track explains the next frames best and goes on")
@@ -440,9 +486,12 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
                 # seed, so the choice and what follows are reproducible
                 make = (lambda k: m.tracker(ds, body, ctx, opts, np.random.default_rng([seed, k])))
                 # a tie keeps the start's own best (see _decide)
-                tracker, decided = _choose_start(tracker, make, starts, first,
-                                                 range(first, min(stop, first + decide_frames)),
-                                                 hooks, incumbent=0)
+                tracker, decided, verdict = _choose_start(
+                    tracker, make, starts, first, range(first, min(stop, first + decide_frames)),
+                    hooks, incumbent=0)
+                decided[first][0].info["start"] = verdict
+                if verdict["uncertain"]:
+                    _warn_uncertain_start(first, verdict)
             log.info("initialised (%s) at frame %d in %.2f s", init, first,
                      time.perf_counter() - t0)
         bar = shown.frames(stop - first)
