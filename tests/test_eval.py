@@ -481,6 +481,35 @@ def test_quality_says_when_the_iou_is_against_masks_the_track_refined():
     assert "refined" not in quality_table(plain)
 
 
+def test_quality_reports_an_uncertain_start_and_the_restarts():
+    """The runner's record of the start (first frame's ``info["start"]``) and of re-start
+    checks reaches the summary and the table; an uncertain start is flagged, a clear one is
+    not, and a result without the records says nothing about them."""
+    from gltrack.eval.quality import quality_summary, quality_table
+
+    res = {"joints": np.zeros((6, 1, 3)), "joint_names": ["a"], "frame": np.arange(2, 8)}
+    start = {"hypotheses": 2, "frames": 4, "measure": "quality", "means": [0.349, 0.371],
+             "kept": 0, "uncertain": True, "turned_deg": [0.0, -171.5]}
+    infos = {2: {"start": start},
+             5: {"restart": {"frame": 4, "hypotheses": 2, "restarted": True,
+                             "decision": {"uncertain": False}}},
+             7: {"restart": {"frame": 6, "hypotheses": 2, "restarted": False}}}
+    q = quality_summary(res, infos)
+    assert q["start"] == start
+    assert q["restarts"] == [{"frame": 4, "restarted": True, "uncertain": False},
+                             {"frame": 6, "restarted": False, "uncertain": False}]
+    text = quality_table(q)
+    assert "start: 2 hypotheses tracked 4 frames, mean quality 0.349, 0.371; turned 0, -172 " \
+        "deg from the kept one; kept 0" in text
+    assert "start UNCERTAIN" in text and "re-start checks: 2, re-started at 4" in text
+    clear = quality_table(quality_summary(res, {2: {"start": {**start, "uncertain": False}}}))
+    assert "start: 2 hypotheses" in clear and "UNCERTAIN" not in clear
+    assert "re-start" not in clear
+    bare = quality_summary(res, {})
+    assert bare["start"] is None and bare["restarts"] == []
+    assert "start" not in quality_table(bare)
+
+
 def test_body_height_against_the_subject_surface(tmp_path, capsys):
     """A dataset whose subject records its surface stature (``gltrack synth --mesh``) gets the
     estimate's height compared with that surface too, in the bench figures and in ``gltrack

@@ -104,7 +104,10 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         ``jitter_mean_mm``, ``jitter_p95_mm`` (mm/frame^2, NaN with fewer than 3 consecutive
         frames), ``jitter_frames``, ``jitter_joints`` (names); ``per_frame``: ``frame`` (N,),
         ``iou_<camera>``, ``model_on_fg_<camera>``, ``fg_covered_<camera>`` (N,) (NaN where not
-        recorded) and ``jitter_mm`` (N,) (NaN at the ends of a run of frames).
+        recorded) and ``jitter_mm`` (N,) (NaN at the ends of a run of frames);
+        ``start``: the choice between start hypotheses the runner recorded on the first frame
+        (``info["start"]``: ``means``, ``kept``, ``uncertain``, ``turned_deg``), or None;
+        ``restarts``: one dict per re-start check (``frame``, ``restarted``, ``uncertain``).
     """
     frames = np.asarray(result.get("frame", np.arange(len(result["joints"]))), dtype=np.int64)
     order = np.argsort(frames, kind="stable")
@@ -155,6 +158,12 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
             per[f"{key}_{name}"] = tab[:, k]
     per["jitter_mm"] = per_jit
     refined = sum(bool(infos.get(int(f), {}).get("masks_refined")) for f in frames)
+    start = next((infos[int(f)]["start"] for f in frames
+                  if isinstance(infos.get(int(f), {}).get("start"), dict)), None)
+    restarts = [{"frame": r.get("frame"), "restarted": bool(r.get("restarted")),
+                 "uncertain": bool((r.get("decision") or {}).get("uncertain"))}
+                for r in (infos.get(int(f), {}).get("restart") for f in frames)
+                if isinstance(r, dict)]
     return {
         "cameras": names, "iou_mean": mean, "iou_min": mn, "iou_frames_below": below,
         "iou_low": float(low), "iou_frames": int(recorded.sum()),
@@ -164,6 +173,7 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         "jitter_mean_mm": float(good.mean()) if good.size else float("nan"),
         "jitter_p95_mm": float(np.percentile(good, 95)) if good.size else float("nan"),
         "jitter_frames": int(good.size), "jitter_joints": [jnames[i] for i in idx],
+        "start": start, "restarts": restarts,
         "per_frame": per,
     }
 
@@ -210,4 +220,28 @@ def quality_table(q: dict) -> str:
                      f"{len(q['jitter_joints'])} joints)")
     else:
         lines.append("joint jitter: n/a (fewer than 3 consecutive frames)")
+    lines += _start_lines(q.get("start"), q.get("restarts") or [])
     return "\n".join(lines)
+
+
+def _start_lines(start: dict | None, restarts: list) -> list[str]:
+    """How the track began and was re-started, as text lines: an uncertain start (a tie
+    between a body and its turned-round twin) is the first thing to check on a real take."""
+    lines = []
+    if start:
+        means = ", ".join(f"{m:.3f}" for m in start.get("means", []))
+        turned = start.get("turned_deg")
+        apart = "" if turned is None else \
+            "; turned " + ", ".join(f"{t:.0f}" for t in turned) + " deg from the kept one"
+        lines.append(f"start: {start.get('hypotheses')} hypotheses tracked {start.get('frames')} "
+                     f"frames, mean {start.get('measure')} {means}{apart}; kept "
+                     f"{start.get('kept')}")
+        if start.get("uncertain"):
+            lines.append("start UNCERTAIN: the hypotheses explained the first frames about "
+                         "equally well; check in the overlay (gltrack render) that the body "
+                         "faces the right way")
+    if restarts:
+        done = [r["frame"] for r in restarts if r["restarted"]]
+        lines.append(f"re-start checks: {len(restarts)}, re-started at "
+                     + (", ".join(str(f) for f in done) if done else "none"))
+    return lines

@@ -262,7 +262,7 @@ def _verdict(trackers, runs, k: int) -> dict:
     """What a choice between start hypotheses rested on (JSON-able, for the kept first frame's
     ``info``): how many hypotheses over how many frames, each one's mean, which was kept,
     whether another came within :data:`TIE` of it (``uncertain``: the evidence hardly told them
-    apart and a tie rule decided) and, where the body has a heading DOF, how far each
+    apart, whichever rule then chose) and, where the body has a heading DOF, how far each
     hypothesis's first pose is turned from the kept one's (degrees, -180..180)."""
     means, measure = _means(runs)
     lowest = min(means)
@@ -306,9 +306,9 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks, incumbent=No
 
 
 def _warn_uncertain_start(first: int, verdict: dict) -> None:
-    """Say that the start hypotheses tied (``verdict`` from :func:`_verdict`): the kept one
-    rests on a tie rule, and a body tracked turned round is a whole take lost, so the user
-    should look before trusting it."""
+    """Say that the start hypotheses tied (``verdict`` from :func:`_verdict`): the evidence
+    hardly chose the kept one, and a body tracked turned round is a whole take lost, so the
+    user should look before trusting it."""
     means = ", ".join(f"{m:.3f}" for m in verdict["means"])
     turned = verdict.get("turned_deg")
     apart = "" if turned is None else " (turned " + ", ".join(f"{t:.0f}" for t in turned) + \
