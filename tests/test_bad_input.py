@@ -176,6 +176,15 @@ CASES = {
                       "--behaviour", str(b / "res" / "poses.npz")], "poses.npz", "out", None),
     "track-lost-frames-negative": (lambda b, t: _track(b / "ds", "--lost-frames", "-1"),
                                    "--lost-frames", "out", None),
+    "track-start-hypothesis-negative": (lambda b, t: _track(b / "ds", "--start-hypothesis", "-1"),
+                                        "--start-hypothesis", "out", None),
+    "track-start-hypothesis-with-groundtruth": (
+        lambda b, t: _track(b / "ds", "--init", "groundtruth", "--start-hypothesis", "1"),
+        "--init groundtruth", "out", None),
+    "track-start-hypothesis-beyond-the-start-leaves-nothing": (
+        lambda b, t: _track(_ds_with_background(b, t), "--body", "dataset",
+                            "--start-hypothesis", "9"),
+        "--start-hypothesis 9: the start at frame 0 has", "out", None),
     "track-dof-unknown": (lambda b, t: _track(b / "ds", "--dof", "12"), "--dof", "out", None),
     "track-preset-alias-unknown": (lambda b, t: _track(b / "ds", "--preset", "12"), "--preset",
                                    "out", None),

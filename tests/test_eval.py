@@ -505,6 +505,10 @@ def test_quality_reports_an_uncertain_start_and_the_restarts():
     clear = quality_table(quality_summary(res, {2: {"start": {**start, "uncertain": False}}}))
     assert "start: 2 hypotheses" in clear and "UNCERTAIN" not in clear
     assert "re-start" not in clear
+    by_hand = quality_table(quality_summary(res, {2: {"start": {
+        "hypotheses": 2, "kept": 1, "chosen": "--start-hypothesis"}}}))
+    assert "start: hypothesis 1 of 2, kept by --start-hypothesis" in by_hand
+    assert "UNCERTAIN" not in by_hand
     bare = quality_summary(res, {})
     assert bare["start"] is None and bare["restarts"] == []
     assert "start" not in quality_table(bare)

@@ -190,6 +190,7 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys
     here: on a real take the start comes after its delay)."""
     import logging
 
+    from gltrack.body.model import BodyModel
     from gltrack.track import runner
     from gltrack.track.runner import track
 
@@ -217,6 +218,17 @@ def test_auto_start_decides_between_a_body_and_its_twin(tmp_path, caplog, capsys
     assert verdict["hypotheses"] == len(verdict["means"]) >= 2 and verdict["frames"] == 6
     assert verdict["measure"] == "quality" and verdict["turned_deg"][verdict["kept"]] == 0.0
     assert max(abs(t) for t in verdict["turned_deg"]) > 90  # the twin is turned round
+    # the other hypothesis, kept by hand (no decision): the same start, the twin's heading
+    other = next(j for j, t in enumerate(verdict["turned_deg"]) if abs(t) > 90)
+    track(tmp_path / "ds", "hc", tmp_path / "twin", body="dataset", progress=False,
+          frames=(0, 2), start_hypothesis=other)
+    twin = json.loads((tmp_path / "twin" / "frames.jsonl").read_text().splitlines()[0])
+    assert twin["info"]["start"] == {"hypotheses": verdict["hypotheses"], "kept": other,
+                                     "chosen": "--start-hypothesis"}
+    yaw = BodyModel.build().dofs.index("pelvis_ry")
+    turned = np.angle(np.exp(1j * (twin["params"][yaw] - first["params"][yaw])))
+    assert abs(np.degrees(turned)) > 90, np.degrees(turned)
+    assert incumbents == [0]  # no decision this time
     bar = capsys.readouterr().err
     assert "--init auto: finding the start" in bar
     assert "start hypotheses, each tracked 6 frames" in bar

@@ -35,6 +35,13 @@ def add_arguments(p):
                    help="initial pose: 'auto' finds the body from nothing (a later frame when the "
                         "first shows no person); 'groundtruth' takes the true first pose from "
                         "groundtruth.npz (an oracle, for ablations only); or a .npy/.npz pose file")
+    p.add_argument("--start-hypothesis", type=int, metavar="K",
+                   help="keep hypothesis K of the automatic start (0: its best; 1: the next, "
+                        "usually the turned-round twin; with a pose file as --init, 0 is the "
+                        "file's pose) instead of tracking each a few frames and keeping the "
+                        "one that explains them. For a start `gltrack eval` flags UNCERTAIN "
+                        "whose overlay faces the wrong way: on one machine the same seed and body "
+                        "give the same hypotheses")
     p.add_argument("--frames", metavar="A:B", help="dataset frames A (inclusive) to B (exclusive); default: all")
     p.add_argument("--body", default="estimate", metavar="estimate|dataset|FILE.json",
                    help="body to track with, recorded in RESULT/body.json: 'estimate' (default) "
@@ -157,6 +164,13 @@ def run(args):
         raise UsageError(f"--lost-frames must be at least 0, got {args.lost_frames}")
     if args.force and not args.resume:
         raise UsageError("--force applies to --resume only")
+    if args.start_hypothesis is not None:
+        if args.start_hypothesis < 0:
+            raise UsageError(f"--start-hypothesis must be at least 0, got {args.start_hypothesis}")
+        if args.init == "groundtruth" or args.resume:
+            raise UsageError("--start-hypothesis picks among the automatic start's hypotheses: "
+                             "not with " + ("--init groundtruth" if args.init == "groundtruth"
+                                            else "--resume (the run has started)"))
     frames = _frames(args.frames, UsageError)
     # a run failing before its first frame leaves no debris; one failing later says what it kept
     with results_guard(args.out, resume=args.resume):
@@ -164,7 +178,7 @@ def run(args):
                        init=args.init, resume=args.resume, overwrite=args.overwrite,
                        frames=frames, preset=args.dof, seed=args.seed,
                        progress=not args.quiet, body=args.body, lost_frames=args.lost_frames,
-                       force=args.force)
+                       force=args.force, start_hypothesis=args.start_hypothesis)
     fps = timing.get("fps")
     print(f"tracked {timing['frames']} frames with {args.method} in {timing['seconds']:.1f} s "
           f"({fps:.2f} frames/s, {timing['evaluations']} candidate evaluations) -> {args.out}"

@@ -228,7 +228,10 @@ def _start_lines(start: dict | None, restarts: list) -> list[str]:
     """How the track began and was re-started, as text lines: an uncertain start (a tie
     between a body and its turned-round twin) is the first thing to check on a real take."""
     lines = []
-    if start:
+    if start and start.get("chosen"):
+        lines.append(f"start: hypothesis {start.get('kept')} of {start.get('hypotheses')}, kept "
+                     f"by {start['chosen']} (not decided by the frames)")
+    elif start:
         means = ", ".join(f"{m:.3f}" for m in start.get("means", []))
         turned = start.get("turned_deg")
         apart = "" if turned is None else \

@@ -305,6 +305,17 @@ def _choose_start(tracker, make, starts, first: int, frames, hooks, incumbent=No
     return everyone[k], dict(zip(frames, runs[k])), _verdict(everyone, runs, k)
 
 
+def _pick_start(starts, k: int, frame: int):
+    """The start hypothesis ``k`` alone, and its record for the first frame's ``info``
+    (``hypotheses``, ``kept``, ``chosen``); ValueError when there is no hypothesis ``k``."""
+    n = len(starts)
+    if not 0 <= k < n:
+        raise ValueError(f"--start-hypothesis {k}: the start at frame {frame} has {n} "
+                         f"hypothes{'is' if n == 1 else 'es'} (0..{n - 1})")
+    log.info("frame %d: start hypothesis %d of %d kept (--start-hypothesis)", frame, k, n)
+    return [starts[k]], {"hypotheses": n, "kept": int(k), "chosen": "--start-hypothesis"}
+
+
 def _warn_uncertain_start(first: int, verdict: dict) -> None:
     """Say that the start hypotheses tied (``verdict`` from :func:`_verdict`): the evidence
     hardly chose the kept one, and a body tracked turned round is a whole take lost, so the
@@ -316,9 +327,11 @@ def _warn_uncertain_start(first: int, verdict: dict) -> None:
     log.warning("frame %d: the %d start hypotheses%s explained frames %d-%d about equally well "
                 "(mean %s %s, within %.0f %%); kept %d. A body and its turned-round twin fit "
                 "the images about equally well: look at the overlay (gltrack render) to see "
-                "that the body faces the right way", first, verdict["hypotheses"], apart, first,
+                "that the body faces the right way (if not, track again with "
+                "--start-hypothesis %d)", first, verdict["hypotheses"], apart, first,
                 first + verdict["frames"] - 1, verdict["measure"], means, 100 * TIE,
-                verdict["kept"])
+                verdict["kept"], next(j for j in range(verdict["hypotheses"])
+                                      if j != verdict["kept"]))
 
 
 def _restart(tracker, make, frame: int, frames, hooks):
@@ -353,7 +366,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
           hooks=(), body: str = "estimate", max_search: int = 30,
           decide_frames: int = 10, lost_frames: int = 3, check_start: bool = True,
-          force: bool = False) -> dict:
+          force: bool = False, start_hypothesis: int | None = None) -> dict:
     """Track ``dataset_path`` with ``method`` and write the results folder ``out``.
 
     Parameters
@@ -387,6 +400,10 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         (:meth:`~gltrack.track.lost.LossWatch.confirm`); 0 never re-starts
     check_start : with a pose file as ``init``, also try the automatic start (False: trust the
         file, e.g. a bench's true first pose in another DOF preset)
+    start_hypothesis : keep this start hypothesis (an index into the automatic start's
+        hypotheses, after a pose file's pose when ``init`` is one) instead of deciding
+        between them over ``decide_frames`` frames; the first frame's ``info["start"]``
+        records it (``chosen``). ValueError when the start has fewer hypotheses
     force : with ``resume``, accept a dataset whose fingerprint differs from the one recorded
         in ``out/run.json`` (:mod:`gltrack.data.provenance`; another dataset, first frame, seed
         or options are refused, and a resume without ``frames`` tracks the recorded range)
@@ -446,6 +463,7 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         shown.close()
         raise
     decided = {}  # frames already tracked while deciding between start hypotheses
+    chosen = None  # the record of a start hypothesis kept by start_hypothesis, for frame one
     watch = LossWatch(tracker.lost_threshold(), tracker.relative_loss)
     finished = {}  # resumed: frame -> written params of the frames tracked again, not written
     try:
@@ -470,6 +488,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
             shown.say(f"--init {init}: finding the start")
             first, starts = _first_pose(init, ds, body, tracker, start, stop, max_search,
                                         check_start)
+            if start_hypothesis is not None:
+                starts, chosen = _pick_start(starts, start_hypothesis, first)
             if seated(body.dofs.preset):
                 # seen from the waist up: seated, so the pelvis stays near where it starts
                 # (SEAT_REACH); body.json records the seat, a resumed run holds it too
@@ -497,6 +517,8 @@ def track(dataset_path, method: str, out, *, options: dict | None = None, init: 
         bar = shown.frames(stop - first)
         for f in range(first, stop):
             est, secs = decided.pop(f) if f in decided else _step(tracker, f, hooks)
+            if chosen is not None:
+                est.info["start"], chosen = chosen, None
             p = est.params[None]
             if f in finished:  # written before a kill that came before its checkpoint
                 checkpoint.replayed(f, est, finished)
