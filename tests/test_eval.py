@@ -502,6 +502,7 @@ def test_quality_reports_an_uncertain_start_and_the_restarts():
     assert "start: 2 hypotheses tracked 4 frames, mean quality 0.349, 0.371; turned 0, -172 " \
         "deg from the kept one; kept 0" in text
     assert "start UNCERTAIN" in text and "re-start checks: 2, re-started at 4" in text
+    assert "(if not: --start-hypothesis 1)" in text
     clear = quality_table(quality_summary(res, {2: {"start": {**start, "uncertain": False}}}))
     assert "start: 2 hypotheses" in clear and "UNCERTAIN" not in clear
     assert "re-start" not in clear

@@ -240,9 +240,12 @@ def _start_lines(start: dict | None, restarts: list) -> list[str]:
                      f"frames, mean {start.get('measure')} {means}{apart}; kept "
                      f"{start.get('kept')}")
         if start.get("uncertain"):
+            other = next((j for j in range(int(start.get("hypotheses") or 0))
+                          if j != start.get("kept")), None)
             lines.append("start UNCERTAIN: the hypotheses explained the first frames about "
                          "equally well; check in the overlay (gltrack render) that the body "
-                         "faces the right way")
+                         "faces the right way" + ("" if other is None else
+                                                  f" (if not: --start-hypothesis {other})"))
     if restarts:
         done = [r["frame"] for r in restarts if r["restarted"]]
         lines.append(f"re-start checks: {len(restarts)}, re-started at "
