@@ -4,7 +4,8 @@
 
 Writes docs/demo_depth_frame.jpg and docs/demo_multiview_frame.jpg (frame 40 of the run's
 overlay videos, as decoded from the videos) and docs/demo_errors.png (the run's errors.png),
-then prints the run's numbers that the README quotes, so text and pictures come from the same run.
+then prints the run's numbers that docs/measurements.md ("Demo") quotes, so text and pictures
+come from the same run.
 """
 import argparse
 import json

@@ -119,7 +119,8 @@ def check_reference_data(name) -> None:
     reference clips it synthesises its data from: it would do nothing and say little.
 
     Generated motion is no substitute: the benches' figures are the CMU clips' (comparable
-    from run to run and with the README), so without those clips there is nothing to measure.
+    from run to run and with docs/measurements.md), so without those clips there is nothing
+    to measure.
     Some clips missing only skips those (a warning on stderr).
     """
     from gltrack.bench import shared_candidates, shared_dir

@@ -20,8 +20,8 @@ Per frame and camera, :func:`refine_with_model` combines the two:
 
 What this cannot fix: a frame where the model is off the person (the refined mask then follows
 the model's error within ``reach_m``; check the overlay before refining from a poor track).
-Measured on the caliscope take (seated, frames 0-19): see the README's "Track your own
-recording".
+Measured on the caliscope take (seated, frames 0-19): see docs/measurements.md, "Real footage"
+(the caliscope paragraphs).
 """
 from __future__ import annotations
 

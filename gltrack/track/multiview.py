@@ -262,7 +262,7 @@ class MultiviewOptions(Options):
         better fit. Off by default: with the hull reference (0.15 m) neither the honest
         synthetic clips (walk, hop, salsa; 3 seeds; 84.5 / 117.0 / 80.9 mm against 80.7 /
         100.0 / 79.6) nor the Pose2Sim take (IoU within 0.02 per camera) measured better
-        (README, "Ground contact from the visual hull")
+        (docs/measurements.md, "Ground contact from the visual hull")
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
