@@ -337,7 +337,9 @@ def test_compute_reduction_reads_all_cameras_back_once(ctx, body, rng):
     S = kin.skinning_matrices(random_poses(body, rng, 17))
     params = DepthCostParams()
     obs = [ref_render(mesh, truth, cam)[0][0] for cam in cs]
-    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, depth_params=params) as eng:
+    # workers=0: the readbacks counted are this process's (a call this size would go to them)
+    with ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, depth_params=params,
+                       workers=0) as eng:
         for c in range(len(cs)):
             eng.set_depth(c, obs[c])
         got, reads = {}, {}
@@ -672,6 +674,21 @@ def test_worker_count_choice(monkeypatch):
     assert resolve_workers("auto", llvmpipe, "fastest") == 0
 
 
+def test_which_calls_go_to_the_workers():
+    """A call goes to the workers when each share gets a candidate and enough candidates x
+    cameras: from 4 candidates with 4 cameras and 2 workers, from 128 with one camera (the
+    depth climb's calls stay here); never without workers."""
+    from gltrack.render.engine import WORKER_MIN_WORK, WORKER_MIN_WORK_ONE_CAMERA, use_workers
+
+    assert WORKER_MIN_WORK < WORKER_MIN_WORK_ONE_CAMERA
+    assert [use_workers(n, 4, 2) for n in (1, 3, 4, 91)] == [False, False, True, True]
+    assert not use_workers(127, 1, 2) and use_workers(128, 1, 2)
+    assert not use_workers(1, 16, 2), "two shares need two candidates"
+    assert use_workers(2, 16, 2)
+    assert not use_workers(10_000, 4, 0)
+    assert not use_workers(7, 4, 4) and use_workers(8, 4, 4) and use_workers(2, 4, 1)
+
+
 def _colour_engine(ctx, body, rng, cs, workers):
     skel, dofs, kin, mesh = body
     eng = ScoringEngine(ctx, mesh, skel.n_joints, cs, tile=TILE, workers=workers)
@@ -699,16 +716,16 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
     W.close_shared_pool()  # a pool of two, whatever earlier tests started
     skel, dofs, kin, mesh = body
     cs = cams(4, size=TILE, kind="colour")
-    P = random_poses(body, rng, 138)  # two shares of 69 x 4 cameras: WORKER_MIN_WORK each
+    P = random_poses(body, rng, 138)  # two shares of 69 candidates x 4 cameras
     S = kin.skinning_matrices(P)
     chans = ["silhouette", "appearance"]
     # both engines get the same random observations
     one = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=0)
     two = _colour_engine(ctx, body, np.random.default_rng(7), cs, workers=2)
     with one, two:
-        small = two.score(S[:30], chans)
-        assert W.current_pool() is None, "30 x 4 < 2 x WORKER_MIN_WORK: it stays in this process"
-        np.testing.assert_array_equal(small, one.score(S[:30], chans))
+        small = two.score(S[:3], chans)
+        assert W.current_pool() is None, "3 x 4 < 2 x WORKER_MIN_WORK: it stays in this process"
+        np.testing.assert_array_equal(small, one.score(S[:3], chans))
         steps = []
         steps.append((one.score(S, chans), two.score(S, chans)))
         pool = W.current_pool()
@@ -726,7 +743,7 @@ def test_workers_score_as_this_process_does(ctx, body, rng):
             e.set_kinematics(kin)
         # (camera 1 has no colour bits since it moved: silhouettes only from here)
         steps.append((one.score_poses(P, ["silhouette"]), two.score_poses(P, ["silhouette"])))
-        assert two.evaluations == one.evaluations == 30 + 4 * len(S)
+        assert two.evaluations == one.evaluations == 3 + 4 * len(S)
     for k, (a, b) in enumerate(steps):
         for c in range(4):
             for slot in (1, 2):

@@ -66,13 +66,22 @@ _GL_CLIP_DISTANCE0 = 0x3000
 _TRI_BITS_WIDTH = 1024
 #: A view's observation textures: attribute of ``_View`` -> (components, dtype).
 _TEXTURES = {"obs_z": (1, "f4"), "obs_mask": (2, "f4"), "obs_bits": (3, "u4"), "tri_bits": (3, "u4")}
-#: Least work, in candidates x cameras, a worker process gets in one call
-#: (``ScoringEngine(workers=...)``): a smaller call stays in this process. Measured on llvmpipe
-#: (2 cores, 2 workers, 64 px): four cameras, 32 candidates 15 ms against 30 in one process, 91
-#: 58 against 72, 800 0.37-0.39 s against 0.45-0.52; one camera, 32 candidates 6.7 against 9.5
-#: ms. But the depth climb (one camera, ~55 candidates a call) ran no faster with workers
-#: (hc+ep 2.86 / 3.14 / 3.77 frames/s against 2.89 / 2.84 / 3.80), so its calls stay here.
-WORKER_MIN_WORK = 64
+#: Least work, in candidates x cameras, each worker process gets in one call of two or more
+#: cameras (``ScoringEngine(workers=...)``, :func:`use_workers`): a smaller call stays in this
+#: process. A call of several cameras renders, reduces and reads back once per camera, and the
+#: workers overlap those steps. Measured on llvmpipe (2 cores, 2 workers, 64 px, four cameras;
+#: 2026-11-29, Intel Xeon VM, medians): 4 candidates 10.8 ms against 11.7 in this process, 8
+#: 18.5 against 25.9, 16 29.7 against 44.8, 91 158 against 208; the Pose2Sim take's body
+#: estimate (about 6000 calls, most of 4-17 candidates) 75.6 s with this threshold against
+#: 95-101 s with the former 64, the same body (1.8081 m).
+WORKER_MIN_WORK = 8
+#: The same for a call of one camera (the depth tracker's climb, ~55 candidates a call). Kept at
+#: the former threshold: on an AMD EPYC VM the depth climb ran no faster with workers (hc+ep
+#: 2.86 / 3.14 / 3.77 frames/s against 2.89 / 2.84 / 3.80); on the Intel Xeon VM (2026-11-29)
+#: it ran 1.15-1.46x faster with them, but the shares' edge pixels moved the depth bench's
+#: tracks (hop hc 0.068 -> 0.095 m, salsa hc+ep 0.051 -> 0.057, walk hc+ep 0.041 both), which
+#: one run cannot tell from noise (docs/measurements.md, "Engine workers for small calls").
+WORKER_MIN_WORK_ONE_CAMERA = 64
 _ENGINE_IDS = itertools.count()
 #: Bytes of render target per grid pixel: depth (4) + depth and triangle id (8) + depth buffer
 #: (4) + RGBA32F cost with its mipmaps (16 * 4/3), rounded up.
@@ -314,8 +323,7 @@ class ScoringEngine:
         else :func:`choose_reduce_group`.
     workers : int or "auto"
         Helper processes (:mod:`gltrack.render.workers`) that score equal shares of every call
-        of at least ``workers * WORKER_MIN_WORK`` candidates x cameras, each with a context of
-        its own;
+        that is large enough (:func:`use_workers`), each with a context of its own;
         0 scores everything here. The scores are this process's up to an edge pixel here and
         there (a candidate's pixels depend on its tile's place in the grid, and a share has a
         smaller grid). They start on the first such call; if one cannot start or dies, the
@@ -822,7 +830,7 @@ class ScoringEngine:
     def _score_on_workers(self, X, channels, poses):
         """Equal shares of ``X`` scored by the worker processes, or None: too few candidates,
         no workers, or they failed (logged; the engine then scores everything itself)."""
-        if self.workers < 1 or len(X) * len(self.views) < self.workers * WORKER_MIN_WORK:
+        if not use_workers(len(X), len(self.views), self.workers):
             return None
         try:
             pool = worker_pool.shared_pool(self.workers)
@@ -1227,6 +1235,27 @@ def choose_triangle_ids(renderer: str) -> str:
     one there (see :func:`choose_skinning`), and it has not been timed on a GPU.
     """
     return "provoking" if is_software_renderer(renderer) else "primitive"
+
+
+def use_workers(candidates: int, cameras: int, workers: int) -> bool:
+    """Whether the engine's worker processes score a call (in equal shares) or this process does.
+
+    Parameters
+    ----------
+    candidates : int, candidates in the call
+    cameras : int, the engine's cameras
+    workers : int, the engine's worker processes (0: none)
+
+    Returns
+    -------
+    bool, True when there are workers, each gets at least one candidate, and each share holds
+    at least :data:`WORKER_MIN_WORK` candidates x cameras (:data:`WORKER_MIN_WORK_ONE_CAMERA`
+    with one camera).
+    """
+    if workers < 1 or candidates < workers:
+        return False
+    least = WORKER_MIN_WORK if cameras > 1 else WORKER_MIN_WORK_ONE_CAMERA
+    return candidates * cameras >= workers * least
 
 
 def resolve_workers(workers, renderer: str, reduction: str = "auto") -> int:
