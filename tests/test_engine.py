@@ -676,13 +676,12 @@ def test_worker_count_choice(monkeypatch):
 
 def test_which_calls_go_to_the_workers():
     """A call goes to the workers when each share gets a candidate and enough candidates x
-    cameras: from 4 candidates with 4 cameras and 2 workers, from 128 with one camera (the
-    depth climb's calls stay here); never without workers."""
-    from gltrack.render.engine import WORKER_MIN_WORK, WORKER_MIN_WORK_ONE_CAMERA, use_workers
+    cameras: from 4 candidates with 4 cameras and 2 workers, from 16 with one camera (the
+    depth climb's calls of ~55); never without workers."""
+    from gltrack.render.engine import use_workers
 
-    assert WORKER_MIN_WORK < WORKER_MIN_WORK_ONE_CAMERA
     assert [use_workers(n, 4, 2) for n in (1, 3, 4, 91)] == [False, False, True, True]
-    assert not use_workers(127, 1, 2) and use_workers(128, 1, 2)
+    assert not use_workers(15, 1, 2) and use_workers(16, 1, 2) and use_workers(55, 1, 2)
     assert not use_workers(1, 16, 2), "two shares need two candidates"
     assert use_workers(2, 16, 2)
     assert not use_workers(10_000, 4, 0)

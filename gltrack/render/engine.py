@@ -66,22 +66,19 @@ _GL_CLIP_DISTANCE0 = 0x3000
 _TRI_BITS_WIDTH = 1024
 #: A view's observation textures: attribute of ``_View`` -> (components, dtype).
 _TEXTURES = {"obs_z": (1, "f4"), "obs_mask": (2, "f4"), "obs_bits": (3, "u4"), "tri_bits": (3, "u4")}
-#: Least work, in candidates x cameras, each worker process gets in one call of two or more
-#: cameras (``ScoringEngine(workers=...)``, :func:`use_workers`): a smaller call stays in this
-#: process. A call of several cameras renders, reduces and reads back once per camera, and the
-#: workers overlap those steps. Measured on llvmpipe (2 cores, 2 workers, 64 px, four cameras;
-#: 2026-11-29, Intel Xeon VM, medians): 4 candidates 10.8 ms against 11.7 in this process, 8
-#: 18.5 against 25.9, 16 29.7 against 44.8, 91 158 against 208; the Pose2Sim take's body
-#: estimate (about 6000 calls, most of 4-17 candidates) 75.6 s with this threshold against
-#: 95-101 s with the former 64, the same body (1.8081 m).
+#: Least work, in candidates x cameras, each worker process gets in one call
+#: (``ScoringEngine(workers=...)``, :func:`use_workers`): a smaller call stays in this process.
+#: A call renders, reduces and reads back once per camera, and the workers overlap those steps.
+#: Measured on llvmpipe (2 cores, 2 workers; 2026-11-29, Intel Xeon VM, medians): four cameras
+#: at 64 px, 4 candidates 10.8 ms against 11.7 in this process, 8 18.5 against 25.9, 16 29.7
+#: against 44.8, 91 158 against 208; the Pose2Sim take's body estimate (about 6000 calls, most
+#: of 4-17 candidates) 75.6 s against 95-101 s with the former 64, the same body (1.8081 m).
+#: One camera (the depth climb, ~55 candidates a call): hc+ep 1.32-1.44x the frames/s with
+#: this threshold against 64 (medians over 3 noise seeds of the bench's walk, hop and salsa),
+#: and the tracks' errors within the seeds' spread (4 seeds, hc+ep mean marker error 0.044 /
+#: 0.085 / 0.054 m against 0.043 / 0.102 / 0.053); on an AMD EPYC VM the climb ran as fast
+#: with workers as without (docs/measurements.md, "Engine workers for small calls").
 WORKER_MIN_WORK = 8
-#: The same for a call of one camera (the depth tracker's climb, ~55 candidates a call). Kept at
-#: the former threshold: on an AMD EPYC VM the depth climb ran no faster with workers (hc+ep
-#: 2.86 / 3.14 / 3.77 frames/s against 2.89 / 2.84 / 3.80); on the Intel Xeon VM (2026-11-29)
-#: it ran 1.15-1.46x faster with them, but the shares' edge pixels moved the depth bench's
-#: tracks (hop hc 0.068 -> 0.095 m, salsa hc+ep 0.051 -> 0.057, walk hc+ep 0.041 both), which
-#: one run cannot tell from noise (docs/measurements.md, "Engine workers for small calls").
-WORKER_MIN_WORK_ONE_CAMERA = 64
 _ENGINE_IDS = itertools.count()
 #: Bytes of render target per grid pixel: depth (4) + depth and triangle id (8) + depth buffer
 #: (4) + RGBA32F cost with its mipmaps (16 * 4/3), rounded up.
@@ -1249,13 +1246,11 @@ def use_workers(candidates: int, cameras: int, workers: int) -> bool:
     Returns
     -------
     bool, True when there are workers, each gets at least one candidate, and each share holds
-    at least :data:`WORKER_MIN_WORK` candidates x cameras (:data:`WORKER_MIN_WORK_ONE_CAMERA`
-    with one camera).
+    at least :data:`WORKER_MIN_WORK` candidates x cameras.
     """
     if workers < 1 or candidates < workers:
         return False
-    least = WORKER_MIN_WORK if cameras > 1 else WORKER_MIN_WORK_ONE_CAMERA
-    return candidates * cameras >= workers * least
+    return candidates * cameras >= workers * WORKER_MIN_WORK
 
 
 def resolve_workers(workers, renderer: str, reduction: str = "auto") -> int:
