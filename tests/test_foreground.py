@@ -7,6 +7,7 @@ behind the subject, seen by one camera).
 """
 from __future__ import annotations
 
+import threading
 import tomllib
 
 import cv2
@@ -14,8 +15,9 @@ import numpy as np
 import pytest
 
 from gltrack.camera import Camera, look_at_camera
-from gltrack.observe.foreground import (CUES, ForegroundParams, dilate_mask, estimate_foreground,
-                                        fill_boxes, masked_median, shared_volume, support_column)
+from gltrack.observe.foreground import (CUES, ForegroundParams, SequenceForeground, dilate_mask,
+                                        estimate_foreground, fill_boxes, masked_median,
+                                        shared_volume, support_column)
 
 W, H = 160, 120
 RADII = (0.22, 0.2, 0.12)
@@ -112,6 +114,21 @@ def test_masks_reach_iou_and_distractor_goes_with_the_hull(moving):
     assert full.foreground_fraction().shape == (4,)
     big = full.mask_at(0, 3, (2 * W, 2 * H))
     assert big.shape == (2 * H, 2 * W) and abs(big.mean() - full.masks[0][3].mean()) < 0.01
+
+
+def test_cameras_side_by_side_give_the_masks_of_one_thread(moving):
+    """The cameras' steps run on threads at the same time, and the masks are those of one
+    thread: GrabCut's random start is seeded per camera, not drawn from one shared stream."""
+    cams, frames, truth, dis = moving
+    one = SequenceForeground(frames, cams, rng=np.random.default_rng(1), threads=1).run()
+    four = SequenceForeground(frames, cams, rng=np.random.default_rng(1), threads=4)
+    meet = threading.Barrier(2, timeout=30)  # breaks unless two cameras run at once
+    assert sorted(four.per_camera(lambda c: (meet.wait() if c < 2 else 0, c)[1])) == [0, 1, 2, 3]
+    masks = four.run().masks
+    assert all(np.array_equal(a, b) for a, b in zip(one.masks, masks))
+    assert np.all(_mean_iou(masks, truth) >= 0.8)
+    with pytest.raises(ValueError, match="threads"):
+        SequenceForeground(frames, cams, threads=0)
 
 
 def test_person_masks_fix_the_background_of_a_subject_that_barely_moves():
