@@ -93,13 +93,14 @@ Limits (measured, see the foreground section of docs/ARCHITECTURE.md):
 from __future__ import annotations
 
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from scipy import ndimage
+
+from gltrack.render.workers import core_budget
 
 from .background import bgr_to_yuv, check_bgr, clean_mask, shadow_test
 from .voxels import carve, centre_pixels, pixel_boxes
@@ -159,15 +160,6 @@ def erode_mask(mask, radius: int) -> np.ndarray:
         # as inside, as cv2.erode's default border does
         return m & ~_within(~m, radius)
     return cv2.erode(np.asarray(mask, np.uint8), _disk(radius)).astype(bool)
-
-
-def default_threads() -> int:
-    """Threads the foreground estimate spreads its cameras over: the cores this process may
-    use (the per-camera work is OpenCV and NumPy calls that release the GIL)."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except AttributeError:  # not on Linux
-        return max(os.cpu_count() or 1, 1)
 
 
 def _convex_fill(mask) -> np.ndarray:
@@ -599,14 +591,16 @@ class SequenceForeground:
         cameras' world, ``normal`` pointing up (cue ``"support"``; without it that cue is off)
     threads : int, optional; the cameras' steps (background, candidates, ghost test, GrabCut,
         support colours) run side by side on this many threads (default
-        :func:`default_threads`, at most one per camera); the masks do not depend on it.
+        :func:`gltrack.render.workers.core_budget`, at most one per camera); the masks do not depend on it.
         On the Pose2Sim take (2 cores) the masks take 99 s instead of 139.
     """
 
     def __init__(self, frames_by_camera, cameras, params: ForegroundParams | None = None,
                  rng=None, floor=None, threads: int | None = None):
         self.params = params or ForegroundParams()
-        self.threads = default_threads() if threads is None else int(threads)
+        # the per-camera work is OpenCV and NumPy calls that release the GIL; the cores are
+        # those the process may use, within the share ``gltrack batch`` gives each job
+        self.threads = core_budget() if threads is None else int(threads)
         if self.threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.floor = None if floor is None else check_floor(floor)
