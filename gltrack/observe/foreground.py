@@ -591,8 +591,8 @@ class SequenceForeground:
         cameras' world, ``normal`` pointing up (cue ``"support"``; without it that cue is off)
     threads : int, optional; the cameras' steps (background, candidates, ghost test, GrabCut,
         support colours) run side by side on this many threads (default
-        :func:`gltrack.render.workers.core_budget`, at most one per camera); the masks do not depend on it.
-        On the Pose2Sim take (2 cores) the masks take 99 s instead of 139.
+        :func:`gltrack.render.workers.core_budget`, at most one per camera); the masks do not
+        depend on it. On the Pose2Sim take (2 cores) the masks take 99 s instead of 139.
     """
 
     def __init__(self, frames_by_camera, cameras, params: ForegroundParams | None = None,
