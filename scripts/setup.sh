@@ -46,4 +46,10 @@ if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
     fi
     touch "$STAMP"
 fi
+# MediaPipe's pose landmark model (keypoints, gltrack/observe/keypoints.py): copied once out of
+# the mediapipe wheel on PyPI. Optional: without it ingest writes no keypoints.
+if [ ! -f "$VENV/share/gltrack/models/pose_landmark_full.tflite" ]; then
+    "$PY" "$ROOT/scripts/fetch_pose_model.py" "$VENV/share/gltrack/models" ||
+        echo "gltrack setup: the pose landmark model is not installed; datasets get no keypoints" >&2
+fi
 export PY

@@ -331,3 +331,48 @@ def test_framing_picks_the_upper_preset_for_a_subject_seen_from_the_waist_up(tmp
     # --dof given: no framing decision
     body, rec = resolve_body("estimate", ds, "upper", ctx=ctx, rng=np.random.default_rng(0))
     assert "framing" not in rec["estimate"]
+
+
+def test_keypoints_pull_the_bones_to_the_joints_where_masks_spill(tmp_path, ctx, monkeypatch):
+    """Masks widened by 4 pixels on every side (a segmentation that spills all round) fit a
+    body too large; the same estimate with the true joints as the dataset's triangulated
+    keypoints (``keypoints.npz``, as ``gltrack ingest`` writes it) comes closer in mean bone
+    length, and the keypoint cost at a frame is 0 for the true skeleton at its true pose and
+    grows for a shorter one."""
+    from gltrack.observe.keypoints import BODY_JOINTS, LANDMARKS, NAMES
+
+    monkeypatch.setenv("GLTRACK_ENGINE_WORKERS", "0")  # one process: see the test above
+    true = _body(1.62)
+    path = tmp_path / "mv"
+    ds = _multiview(path, true)
+    for f in sorted(path.glob("cam*_mask/*.png")):
+        cv2.imwrite(str(f), cv2.dilate(cv2.imread(str(f), 0), np.ones((9, 9), np.uint8)))
+    without = estimate_body(ds, ctx, frames=[0], rounds=1, tile=128,
+                            rng=np.random.default_rng(0))
+    gt = ds.groundtruth()
+    names = list(gt["joint_names"])
+    n, c = ds.frames, len(ds.cameras)
+    points = np.full((n, 33, 3), np.nan)
+    for j in BODY_JOINTS:
+        points[:, LANDMARKS[j]] = gt["joints"][:, names.index(j)]
+    np.savez(path / "keypoints.npz", uv=np.zeros((n, c, 33, 2)), visibility=np.ones((n, c, 33)),
+             points=points, residual=np.zeros((n, c, 33)), names=np.array(NAMES))
+    ds = Dataset.open(path)
+    with_kp = estimate_body(ds, ctx, frames=[0], rounds=1, tile=128,
+                            rng=np.random.default_rng(0))
+    err = [body_error(e.skeleton, true.skeleton)["mean_bone_mm"] for e in (with_kp, without)]
+    assert err[0] < 0.7 * err[1], err
+    # the cost itself: 0 at the truth, more for a shorter skeleton at the same angles
+    from gltrack.body.kinematics import Kinematics
+
+    views = body_estimate._SilhouetteFrames(ds, ctx, BodyModel.build(true.skeleton), 64,
+                                            np.random.default_rng(0))
+    try:
+        P = gt["params"]
+        views.add(0, P[0])
+        kin = Kinematics(true.skeleton, true.dofs)
+        assert views.keypoint_cost(0, kin, P[:1])[0] == pytest.approx(0.0, abs=1e-9)
+        short = Kinematics(default_skeleton(1.4), true.dofs)
+        assert views.keypoint_cost(0, short, P[:1])[0] > 0.01 * views.kp_frames[0][1]
+    finally:
+        views.release()

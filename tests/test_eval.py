@@ -359,11 +359,14 @@ IOUS = [[0.9, 0.8], [0.85, 0.5], [0.95, 0.7], [0.8, 0.75], [0.9, 0.55], [0.7, 0.
 
 def test_cli_eval_without_groundtruth_reports_quality(tmp_path, capsys):
     infos = [{"iou": v, "quality": 0.2} for v in IOUS]
+    for k, d in zip((0, 2, 5), (0.04, 0.05, 0.09)):  # the keypoint cue of three frames
+        infos[k]["keypoint_m"] = d
     res, ds = make_dataset_and_result(tmp_path, 0.0, with_gt=False, infos=infos)
     j, c = tmp_path / "q.json", tmp_path / "q.csv"
     assert main(["eval", str(res), str(ds), "--json", str(j), "--csv", str(c)]) == 0
     out = capsys.readouterr().out
     assert "no ground truth" in out and "mean IoU" in out and "jitter" in out
+    assert "triangulated keypoints [mm]: median 50, mean 60 (3 frames" in out
     assert "cam1" in out and "2 (1, 4)" in out  # frames below 0.6 listed
     q = json.loads(j.read_text())["quality"]
     assert q["iou_mean"] == pytest.approx(np.mean(IOUS, axis=0).tolist())
@@ -371,8 +374,10 @@ def test_cli_eval_without_groundtruth_reports_quality(tmp_path, capsys):
     assert q["iou_frames_below"] == {"cam0": [], "cam1": [1, 4]} and q["iou_frames"] == N
     assert q["jitter_frames"] == N - 2 and q["jitter_mean_mm"] > 0
     assert q["jitter_p95_mm"] >= q["jitter_mean_mm"]
+    assert q["keypoint_frames"] == 3 and q["keypoint_mean_mm"] == pytest.approx(60.0)
     rows = list(csv.DictReader(open(c)))
     assert len(rows) == N and float(rows[1]["iou_cam1"]) == pytest.approx(0.5)
+    assert float(rows[2]["keypoint_mm"]) == pytest.approx(50.0) and rows[1]["keypoint_mm"] == ""
     assert rows[0]["jitter_mm"] == "" and float(rows[1]["jitter_mm"]) > 0
     # With ground truth the same figures come on top of the joint errors, keys unchanged.
     res2, ds2 = make_dataset_and_result(tmp_path / "gt", 0.0, infos=infos)

@@ -431,3 +431,38 @@ def test_mask_view_colours_model_against_the_foreground(tmp_path, capsys):
     assert main(["-q", "render", str(tmp_path / "res"), str(ds), "--out", str(out),
                  "--masks"]) == 0
     assert len(_read_video(out)[0]) == 2
+
+
+def test_the_datasets_keypoints_are_drawn_where_they_project(scene, tmp_path):
+    """With ``keypoints.npz`` the triangulated keypoints are drawn (white, thin) where the
+    camera projects them, and listed in the legend; without it nothing white is drawn there."""
+    import shutil
+
+    from gltrack.observe.keypoints import BODY_JOINTS, LANDMARKS, NAMES
+    from gltrack.eval.overlay import KEYPOINT_BGR
+
+    ds = tmp_path / "ds"
+    shutil.copytree(scene["ds"], ds)
+    body, P = scene["body"], scene["P"]
+    J = body.joints(P)
+    points = np.full((N, 33, 3), np.nan)
+    for j in BODY_JOINTS:  # 15 cm beside the true joints: apart from both skeletons
+        points[:, LANDMARKS[j]] = J[:, body.skeleton.names.index(j)] + [0.15, 0.0, 0.0]
+    c = 2
+    np.savez(ds / "keypoints.npz", uv=np.zeros((N, c, 33, 2)), visibility=np.ones((N, c, 33)),
+             points=points, residual=np.zeros((N, c, 33)), names=np.array(NAMES))
+    cam = scene["cams"][1]
+    with OverlayRenderer(scene["res"], ds, cameras="cam1") as r, \
+            OverlayRenderer(scene["res"], scene["ds"], cameras="cam1") as plain:
+        img, ref_img = r.camera_frame(2, 1), plain.camera_frame(2, 1)
+        legend, plain_legend = r.legend(400), plain.legend(400)
+    white = np.all(img == KEYPOINT_BGR, axis=-1) & ~np.all(ref_img == KEYPOINT_BGR, axis=-1)
+    assert white.sum() > 20  # the corner text is white in both
+    uv = np.round(cam.project(points[2, [LANDMARKS[j] for j in BODY_JOINTS]],
+                              distort=False)).astype(int)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    # (the tracked skeleton, drawn last, may cover a few)
+    near = [white[max(v - 1, 0):v + 2, max(u - 1, 0):u + 2].any() for u, v in uv[inside]]
+    assert inside.sum() >= 6 and np.mean(near) >= 0.75, near
+    assert legend.shape[0] >= plain_legend.shape[0] and not np.array_equal(
+        legend[:, :plain_legend.shape[1]][:plain_legend.shape[0]], plain_legend)

@@ -51,6 +51,11 @@ def add_arguments(p):
                         "frames needed; about a second per frame of 4 cameras) and write them as "
                         "camN_mask/; none: frames only (the trackers then need masks or "
                         "camN_background.png from elsewhere)")
+    p.add_argument("--keypoints", default="auto", metavar="auto|none|MODEL",
+                   help="auto: find each camera's body landmarks (MediaPipe's pose landmark "
+                        "model, which scripts/setup.sh installs) and triangulate them into "
+                        "keypoints.npz, when the model is installed; none: skip; or the path "
+                        "of a pose_landmark_full.tflite")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
 
@@ -98,7 +103,7 @@ def run(args):
         r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
                    up=args.up, timestamps=timestamps, overwrite=args.overwrite,
                    progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
-                   masks=args.masks, floor=floor)
+                   masks=args.masks, floor=floor, keypoints=args.keypoints)
     dt = time.perf_counter() - t0
     sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
     up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"
@@ -115,4 +120,13 @@ def run(args):
     else:
         print("no foreground masks (--masks none): give the dataset camN_mask/ or "
               "camN_background.png before tracking it")
+    k = r["keypoints"]
+    if k is not None:
+        res = ", ".join(f"{n} {'-' if v is None else format(v, '.1f')}"
+                        for n, v in zip(r["cameras"], k["residual_px"]))
+        print(f"keypoints ({k['model']}, {k['seconds']:.0f} s): person found in "
+              f"{min(k['found']):.0%}-{max(k['found']):.0%} of the frames; median "
+              f"triangulation residual per camera {res} px")
+    elif args.keypoints != "none":
+        print("no keypoints: the pose landmark model is not installed (scripts/setup.sh)")
     return 0

@@ -17,6 +17,8 @@ Layout::
       environment.json    optional occluder polygons per camera (see :meth:`Dataset.environment`)
       groundtruth.npz     optional: joints (N,J,3) m, joint_names (J,), markers (N,M,3) m,
                           marker_names (M,), params (N,D), anything else numeric
+      keypoints.npz       optional 2-D body landmarks per camera and their triangulation
+                          (see :meth:`Dataset.keypoints`; ``gltrack ingest`` writes it)
 
 Image folders are read in natural name order (``2.png`` before ``10.png``), so folders that were not
 written by :class:`DatasetWriter` work too; :class:`DatasetWriter` names frames ``000000.png``.
@@ -49,6 +51,7 @@ META = "meta.json"
 CALIBRATION = "calibration.json"
 ENVIRONMENT = "environment.json"
 GROUNDTRUTH = "groundtruth.npz"
+KEYPOINTS = "keypoints.npz"
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 VIDEO_EXTS = (".mp4", ".avi", ".mkv", ".mov")
 #: Largest depth a uint16 millimetre PNG holds, metres.
@@ -316,6 +319,7 @@ class Dataset:
         self._masks = {}
         self._env = None
         self._gt = None
+        self._kp = None
 
     # ---- opening and validation -------------------------------------------------------------
     @classmethod
@@ -357,6 +361,7 @@ class Dataset:
             for name in env:
                 ds.blocking_mask(name)
         ds.groundtruth()
+        ds.keypoints()
         return ds
 
     def _validate_camera(self, cam):
@@ -599,6 +604,48 @@ class Dataset:
             self._gt = load_groundtruth(path, self.frames)
         return self._gt
 
+    def keypoints(self):
+        """Body landmarks from ``keypoints.npz``, or None when the dataset has none.
+
+        Returns
+        -------
+        dict
+            ``uv`` (N, C, L, 2) float64 image pixels of each camera (NaN: not found),
+            ``visibility`` (N, C, L) in [0, 1], ``points`` (N, L, 3) float64 metres in the
+            calibration's (internal) frame, triangulated (NaN: too few views),
+            ``residual`` (N, C, L) pixels, ``names`` (L,) str landmark names (``""`` for
+            landmarks gltrack has no name for). N is the dataset's frames, C its cameras.
+
+        Raises
+        ------
+        ValueError
+            Naming the file and the array whose shape or type is wrong.
+        """
+        if self._kp is None:
+            path = self.path / KEYPOINTS
+            if not path.is_file():
+                return None
+            from gltrack.npz import read_npz
+
+            arrays = read_npz(path)
+            n, c = self.frames, len(self.cameras)
+            missing = [k for k in ("uv", "visibility", "points", "residual", "names")
+                       if k not in arrays]
+            if missing:
+                raise ValueError(f"{path}: missing {', '.join(missing)}")
+            L = len(arrays["names"])
+            want = {"uv": (n, c, L, 2), "visibility": (n, c, L), "points": (n, L, 3),
+                    "residual": (n, c, L)}
+            for key, shape in want.items():
+                a = arrays[key]
+                if a.shape != shape or a.dtype.kind != "f":
+                    raise ValueError(f"{path}: {key} must be float {shape} (frames, cameras, "
+                                     f"landmarks), got {a.dtype} {a.shape}")
+                arrays[key] = a.astype(np.float64)
+            arrays["names"] = [str(v) for v in arrays["names"]]
+            self._kp = arrays
+        return self._kp
+
     def close(self):
         for s in self._streams.values():
             if isinstance(s, VideoFile):
@@ -804,6 +851,14 @@ class DatasetWriter:
                             _polygons([np.asarray(p, dtype=np.float64).tolist() for p in polys],
                                       f"polygons of {c.name}")]
         (self.tmp / ENVIRONMENT).write_text(json.dumps({"cameras": cams}, indent=1))
+
+    def write_keypoints(self, uv, visibility, points, residual, names):
+        """Write ``keypoints.npz`` (shapes in :meth:`Dataset.keypoints`)."""
+        np.savez_compressed(self.tmp / KEYPOINTS, uv=np.asarray(uv, np.float32),
+                            visibility=np.asarray(visibility, np.float32),
+                            points=np.asarray(points, np.float64),
+                            residual=np.asarray(residual, np.float32),
+                            names=np.asarray(list(names), dtype=str))
 
     def write_groundtruth(self, joints, joint_names, markers=None, params=None, **extra):
         """Write ``groundtruth.npz``.

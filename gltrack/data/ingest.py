@@ -438,7 +438,7 @@ def _folder_name(name, i, used):
 # --------------------------------------------------------------------------------------------
 def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="auto",
            timestamps=None, overwrite=False, progress=True, max_gb=DEFAULT_MAX_GB,
-           masks="auto", floor="auto"):
+           masks="auto", floor="auto", keypoints="auto"):
     """Make a multi-view gltrack dataset from calibrated videos (see the module docstring).
 
     Parameters
@@ -473,13 +473,19 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         the origin plane when every camera is above it (:func:`~gltrack.data.world.detect_floor`);
         None: unknown. Recorded in ``meta.json`` (``world.floor``); the masks' support cue
         needs it.
+    keypoints : {"auto", "none"} or path
+        ``"auto"``: find each camera's body landmarks and triangulate them
+        (:mod:`gltrack.observe.keypoints`) when the landmark model is installed (logged and
+        skipped when it is not), written as ``keypoints.npz``; a path: that model file, an
+        error if it is missing; ``"none"``: no keypoints.
 
     Returns
     -------
     dict
         Summary: ``path``, ``frames``, ``fps``, ``cameras`` (names), ``sizes`` ([w, h] each),
         ``scale``, ``up``, ``up_angle_deg`` (auto only), ``floor`` (or None), ``sync``,
-        ``bytes`` written, ``masks`` (``meta.json``'s ``"masks"``, or None).
+        ``bytes`` written, ``masks`` (``meta.json``'s ``"masks"``, or None), ``keypoints``
+        (``meta.json``'s ``"keypoints"``, or None).
 
     Raises
     ------
@@ -488,6 +494,14 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
     """
     if masks not in MASKS:
         raise ValueError(f"masks must be one of {MASKS}, got {masks!r}")
+    model = None
+    if keypoints != "none":
+        from gltrack.observe.keypoints import find_model
+
+        model = find_model(None if keypoints == "auto" else keypoints)
+        if model is None:
+            log.info("keypoints: no pose landmark model installed (scripts/setup.sh copies it); "
+                     "the dataset gets none")
     calibration = Path(calibration)
     out = Path(out)
     fmt = detect_format(calibration)
@@ -580,11 +594,16 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         if masks == "auto":
             mask_meta = write_masks(writer, len(fmap), floor=floor)
             writer.extra_meta["masks"] = mask_meta
+        kp_meta = None
+        if model is not None:
+            kp_meta = write_keypoints(writer, len(fmap), model, with_masks=masks == "auto")
+            writer.extra_meta["keypoints"] = kp_meta
     written = sum(p.stat().st_size for p in out.rglob("*.png"))
     return {"path": out, "frames": len(fmap), "fps": out_fps,
             "cameras": [c.name for c in internal], "sizes": [list(s) for s in sizes],
             "scale": scale, "up": up, "up_angle_deg": up_angle, "floor": floor, "sync": sync,
-            "calibration_format": fmt, "bytes": written, "masks": mask_meta}
+            "calibration_format": fmt, "bytes": written, "masks": mask_meta,
+            "keypoints": kp_meta}
 
 
 def write_masks(writer, frames, params=None, floor=None):
@@ -648,6 +667,61 @@ def write_masks(writer, frames, params=None, floor=None):
     return {"method": "sequence-foreground", "cues": cues, "passes": int(params.passes),
             "work_size": int(params.work_size), "seconds": round(seconds, 1),
             "foreground_fraction": frac}
+
+
+def write_keypoints(writer, frames, model, with_masks=True):
+    """Find the body landmarks of the frames a :class:`DatasetWriter` holds, triangulate them
+    and write ``keypoints.npz`` (:func:`gltrack.observe.keypoints.detect_keypoints`).
+
+    Parameters
+    ----------
+    writer : DatasetWriter, open, with colour frames ``0 .. frames-1`` for every camera
+    frames : int
+    model : path, the landmark model
+    with_masks : bool, the writer holds masks (they place each camera's first crop)
+
+    Returns
+    -------
+    dict
+        What ``meta.json`` records as ``"keypoints"``: ``model`` (file name), ``seconds``,
+        ``found`` (per camera: the fraction of frames with a person), ``residual_px``
+        (median reprojection residual per camera), ``swapped`` (per camera: frames whose
+        left and right were exchanged).
+    """
+    import time
+
+    from gltrack.observe.keypoints import detect_keypoints
+
+    cams = writer.cameras
+
+    def read(cam, role, flags):
+        folder = writer.tmp / (cam.name if role == "colour" else f"{cam.name}_{role}")
+        for j in range(frames):
+            img = cv2.imread(str(folder / f"{j:06d}.png"), flags)
+            if img is None:
+                raise OSError(f"{folder / f'{j:06d}.png'}: cannot read back the frame just written")
+            yield img if role == "colour" else img > 127
+
+    t0 = time.perf_counter()
+    log.info("keypoints: finding body landmarks in %d frames x %d cameras", frames, len(cams))
+    kp = detect_keypoints(cams, [read(c, "colour", cv2.IMREAD_COLOR) for c in cams],
+                          [read(c, "mask", cv2.IMREAD_GRAYSCALE) for c in cams]
+                          if with_masks else None, model=model)
+    writer.write_keypoints(kp["uv"], kp["visibility"], kp["points"], kp["residual"],
+                           kp["names"])
+    seconds = time.perf_counter() - t0
+    found = (kp["presence"] >= 0.5).mean(axis=0)
+    with np.errstate(all="ignore"):
+        res = [float(np.nanmedian(kp["residual"][:, c])) if np.isfinite(kp["residual"][:, c]).any()
+               else None for c in range(len(cams))]
+    meta = {"model": Path(model).name, "seconds": round(seconds, 1),
+            "found": [round(float(f), 3) for f in found],
+            "residual_px": [None if r is None else round(r, 1) for r in res],
+            "swapped": [int(v) for v in kp["swapped"].sum(axis=0)]}
+    log.info("keypoints: %s in %.0f s; person found in %s of the frames; median residual %s px",
+             meta["model"], seconds, ", ".join(f"{f:.0%}" for f in found),
+             ", ".join("-" if r is None else f"{r:.1f}" for r in res))
+    return meta
 
 
 def _resize(img, size):

@@ -11,8 +11,9 @@ A run records, when it starts (:func:`run_provenance`, written into ``run.json``
     "gltrack_version": "x.y.z", "started": ISO 8601 UTC time
 
 The fingerprint (:func:`dataset_fingerprint`) is cheap: a SHA-256 over the small files
-(``meta.json``, ``calibration.json``, ``environment.json``, ``groundtruth.npz``) and over the
-sorted names and sizes of every other file (the frames), never the gigabytes of images. Its
+(``meta.json``, ``calibration.json``, ``environment.json``, ``groundtruth.npz``,
+``keypoints.npz``) and over the sorted names and sizes of every other file (the frames), never
+the gigabytes of images. Its
 ``parts`` (one hash per small file and one per frame folder or video) let a refusal say *what*
 differs. Two datasets with the same fingerprint hold the same files under the same names with
 the same sizes and the same metadata, calibration and ground truth.
@@ -33,7 +34,8 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 #: the dataset's small files hashed byte for byte (the rest: names and sizes only)
-_SMALL = ("meta.json", "calibration.json", "environment.json", "groundtruth.npz")
+_SMALL = ("meta.json", "calibration.json", "environment.json", "groundtruth.npz",
+          "keypoints.npz")
 
 
 def gltrack_version() -> str:
@@ -55,7 +57,7 @@ def dataset_fingerprint(path) -> dict:
     dict
         ``fingerprint``: SHA-256 hex over all parts; ``parts``: {name: SHA-256 hex}, one per
         small file present (``meta.json``, ``calibration.json``, ``environment.json``,
-        ``groundtruth.npz``, hashed whole) and one per other top-level entry (a frame folder
+        ``groundtruth.npz``, ``keypoints.npz``, hashed whole) and one per other top-level entry (a frame folder
         such as ``cam0`` or ``cam0_mask``: the sorted names and sizes of its files; a video or
         background image: its name and size). Hidden files (``.*``) are left out.
     """

@@ -14,8 +14,9 @@ Per frame and camera:
    neighbour) so that what follows is drawn at the output size;
 3. the silhouette's outline (:data:`OUTLINE_BGR`), so on real footage the person's own outline
    and the model's can be compared at a glance; the skeleton of the tracked joints (yellow) and,
-   when the dataset has ``groundtruth.npz``, of the ground-truth joints (green), projected with
-   the camera;
+   when the dataset has ``groundtruth.npz``, of the ground-truth joints (green), and when it has
+   ``keypoints.npz``, thinner and white, of the triangulated keypoints the tracker fits,
+   projected with the camera;
 4. frame number, camera name, the frame's mean joint error (with ground truth) and the
    camera's silhouette IoU when ``frames.jsonl`` records it (``info["iou"]`` of the multi-view
    trackers, :mod:`gltrack.eval.quality`; shown in red below 0.6) in the top-left corner, in a
@@ -55,6 +56,13 @@ log = logging.getLogger(__name__)
 
 TRACKED_BGR = (0, 230, 255)
 GROUNDTRUTH_BGR = (60, 220, 60)
+#: the dataset's triangulated body keypoints (``keypoints.npz``), what the tracker fits
+KEYPOINT_BGR = (255, 255, 255)
+#: the keypoints' "bones": limbs, the shoulder and hip lines and the flanks
+KEYPOINT_BONES = (("l_shoulder", "l_elbow"), ("l_elbow", "l_wrist"), ("r_shoulder", "r_elbow"),
+                  ("r_elbow", "r_wrist"), ("l_hip", "l_knee"), ("l_knee", "l_ankle"),
+                  ("r_hip", "r_knee"), ("r_knee", "r_ankle"), ("l_shoulder", "r_shoulder"),
+                  ("l_hip", "r_hip"), ("l_shoulder", "l_hip"), ("r_shoulder", "r_hip"))
 OUTLINE_BGR = (255, 60, 255)
 #: Opacity of the model over colour images, and over colour-mapped depth images.
 ALPHA = 0.6
@@ -211,6 +219,13 @@ class OverlayRenderer:
                        for n, p in zip(sk.names, sk.parents)
                        if p >= 0 and n in names and sk.names[p] in names]
         self.gt = ds.groundtruth()
+        #: the dataset's keypoints (None without ``keypoints.npz``) and their bones
+        self.kp = ds.keypoints()
+        self._kp_bones = []
+        if self.kp is not None:
+            kn = self.kp["names"]
+            self._kp_bones = [(kn.index(a), kn.index(b)) for a, b in KEYPOINT_BONES
+                              if a in kn and b in kn]
         self._gt_bones, self._err_idx = [], None
         if self.gt is not None:
             from gltrack.eval.metrics import EVAL_JOINTS, common_names
@@ -369,6 +384,9 @@ class OverlayRenderer:
         if self.gt is not None and self._gt_bones:
             self._draw_skeleton(img, cam, self.gt["joints"][f], self._gt_bones, GROUNDTRUTH_BGR,
                                 thick, k)
+        if self._kp_bones:
+            self._draw_skeleton(img, cam, self.kp["points"][f], self._kp_bones, KEYPOINT_BGR,
+                                max(1, thick // 2), k)
         joints = self._joints[self._order[i]]
         self._draw_skeleton(img, cam, joints, self._bones, TRACKED_BGR, thick, k)
         err = self.frame_error(i)
@@ -422,7 +440,8 @@ class OverlayRenderer:
                       for c in self.cams if self.dataset.cameras[c].kind == "depth"]
             gt = self.gt is not None and bool(self._gt_bones)
             self._legends[key] = legend_strip(width, text_scale(h), groundtruth=gt,
-                                              depth_ranges=ranges, masks=self.masks)
+                                              depth_ranges=ranges, masks=self.masks,
+                                              keypoints=bool(self._kp_bones))
         return self._legends[key].copy()
 
     def frame(self, i, scale: int = 1, legend: bool = True) -> np.ndarray:
@@ -469,12 +488,13 @@ def _tick_step(span: float, fits: int) -> float:
 
 
 def legend_strip(width: int, scale: float, groundtruth: bool = True,
-                 depth_ranges=(), masks: bool = False) -> np.ndarray:
+                 depth_ranges=(), masks: bool = False, keypoints: bool = False) -> np.ndarray:
     """A strip saying what the overlay's colours mean.
 
     Left to right, wrapping onto more rows as ``width`` needs: a swatch per part group
     (:data:`PART_GROUPS`) of the model's colours, the model's outline, the tracked skeleton and
-    (with ``groundtruth``) the ground-truth skeleton. Then, per depth camera, a row with the
+    (with ``groundtruth``) the ground-truth skeleton, (with ``keypoints``) the keypoints. Then,
+    per depth camera, a row with the
     camera's name and a colour bar from near (left) to far (right), each column coloured exactly
     as :func:`depth_to_bgr` colours that depth, with ticks in metres below it.
 
@@ -486,6 +506,7 @@ def legend_strip(width: int, scale: float, groundtruth: bool = True,
     depth_ranges : sequence of (camera name, (near, far) metres)
     masks : bool, the mask view's colours (model and mask, mask only, model only) instead of
         the parts'
+    keypoints : bool, list the dataset's triangulated keypoints
 
     Returns
     -------
@@ -506,6 +527,8 @@ def legend_strip(width: int, scale: float, groundtruth: bool = True,
     items += [("line", OUTLINE_BGR, "outline"), ("dots", TRACKED_BGR, "tracked")]
     if groundtruth:
         items.append(("dots", GROUNDTRUTH_BGR, "ground truth"))
+    if keypoints:
+        items.append(("dots", KEYPOINT_BGR, "keypoints"))
     placed, x, row = [], pad, 0
     for kind, bgr, label in items:
         w = (sw + pad if kind else 0) + cv2.getTextSize(label, font, scale, thick)[0][0]

@@ -107,7 +107,11 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         recorded) and ``jitter_mm`` (N,) (NaN at the ends of a run of frames);
         ``start``: the choice between start hypotheses the runner recorded on the first frame
         (``info["start"]``: ``means``, ``kept``, ``uncertain``, ``turned_deg``), or None;
-        ``restarts``: one dict per re-start check (``frame``, ``restarted``, ``uncertain``).
+        ``restarts``: one dict per re-start check (``frame``, ``restarted``, ``uncertain``);
+        ``keypoint_median_mm``, ``keypoint_mean_mm``, ``keypoint_frames``: the estimate's
+        mean joint distance to the dataset's triangulated keypoints (``info["keypoint_m"]``,
+        recorded by trackers that use them; NaN and 0 frames otherwise), per frame as
+        ``per_frame["keypoint_mm"]``.
     """
     frames = np.asarray(result.get("frame", np.arange(len(result["joints"]))), dtype=np.int64)
     order = np.argsort(frames, kind="stable")
@@ -157,6 +161,10 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         for key, tab in shares.items():
             per[f"{key}_{name}"] = tab[:, k]
     per["jitter_mm"] = per_jit
+    kp = np.array([np.nan if infos.get(int(f), {}).get("keypoint_m") is None
+                   else 1000.0 * float(infos[int(f)]["keypoint_m"]) for f in frames])
+    per["keypoint_mm"] = kp
+    kp_ok = _finite(kp)
     refined = sum(bool(infos.get(int(f), {}).get("masks_refined")) for f in frames)
     start = next((infos[int(f)]["start"] for f in frames
                   if isinstance(infos.get(int(f), {}).get("start"), dict)), None)
@@ -174,6 +182,9 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         "jitter_p95_mm": float(np.percentile(good, 95)) if good.size else float("nan"),
         "jitter_frames": int(good.size), "jitter_joints": [jnames[i] for i in idx],
         "start": start, "restarts": restarts,
+        "keypoint_median_mm": float(np.median(kp_ok)) if kp_ok.size else float("nan"),
+        "keypoint_mean_mm": float(kp_ok.mean()) if kp_ok.size else float("nan"),
+        "keypoint_frames": int(kp_ok.size),
         "per_frame": per,
     }
 
@@ -220,6 +231,11 @@ def quality_table(q: dict) -> str:
                      f"{len(q['jitter_joints'])} joints)")
     else:
         lines.append("joint jitter: n/a (fewer than 3 consecutive frames)")
+    if q.get("keypoint_frames"):
+        lines.append(f"distance to the triangulated keypoints [mm]: median "
+                     f"{q['keypoint_median_mm']:.0f}, mean {q['keypoint_mean_mm']:.0f} "
+                     f"({q['keypoint_frames']} frames; the tracker fits them, so this says how "
+                     "far the silhouettes pulled it away, not how right either is)")
     lines += _start_lines(q.get("start"), q.get("restarts") or [])
     return "\n".join(lines)
 

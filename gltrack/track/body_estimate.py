@@ -92,6 +92,7 @@ from gltrack.observe.blob_evidence import default_volume
 from gltrack.observe.depth import foreground_points
 from gltrack.observe.depth_view import (DepthLikelihood, DepthObservation, crop_camera,
                                          resample_depth)
+from gltrack.observe.keypoints import keypoint_distance
 from gltrack.observe.multiview import MultiviewObservation
 from gltrack.observe.voxels import carve
 from gltrack.render.engine import DepthCostParams, ScoringEngine
@@ -303,7 +304,7 @@ class _SilhouetteFrames:
     def __init__(self, dataset, ctx, template_body, tile: int, rng):
         self.dataset, self.ctx, self.rng = dataset, ctx, rng
         self.obs = MultiviewObservation(dataset, "auto", rng)
-        self.template_body, self.tile = template_body, tile
+        self.tile = tile
         self.programs = ProgramCache(ctx)
         self.frames, self.engines = [], []
         #: the floor the dataset records (``gltrack ingest --floor``), or None
@@ -311,6 +312,32 @@ class _SilhouetteFrames:
         #: metres (world y): the recorded floor, else the lowest bottom of the visual hulls
         #: measured so far
         self.floor = np.inf if self.known_floor is None else self.known_floor
+        #: the dataset's triangulated keypoints (:func:`gltrack.track.multiview.keypoint_targets`)
+        #: and, per added frame, its keypoints (K, 3) and foreground pixels
+        self.kp_joints, self.kp_points = None, None
+        self.kp_frames = []
+        self.set_template(template_body)
+
+    def set_template(self, body) -> None:
+        """The template body of the search (its preset decides the keypoints' joints)."""
+        from .multiview import HpsOptions, keypoint_targets
+
+        self.template_body = body
+        self.kp_joints, self.kp_points = keypoint_targets(self.dataset, body, HpsOptions())
+
+    def keypoint_cost(self, k: int, kin, X) -> np.ndarray | float:
+        """(N,) pixels for frame ``k``: the tracker's keypoint cost
+        (:meth:`gltrack.track.multiview.MultiviewTracker.keypoint_cost`, the same scale) of
+        the poses ``X`` of the body ``kin``; 0 without keypoints."""
+        target, area = self.kp_frames[k]
+        if target is None:
+            return 0.0
+        d = keypoint_distance(kin.forward(X).positions[:, self.kp_joints], target)
+        if not np.isfinite(d).any():
+            return 0.0
+        from .multiview import HpsOptions
+
+        return area * d / HpsOptions.keypoints
 
     def measure(self, frame: int) -> tuple[float, np.ndarray]:
         """Height (metres, top to bottom plus one voxel) and centroid (3,) of the frame's
@@ -366,6 +393,8 @@ class _SilhouetteFrames:
             eng.set_masks(c, f, b)
         self.frames.append(frame)
         self.engines.append(eng)
+        area = float(sum((f & ~b).sum() for f, b in zip(fg, block)))
+        self.kp_frames.append((None if self.kp_points is None else self.kp_points[frame], area))
 
     def cost(self, k: int, S: np.ndarray) -> np.ndarray:
         return self.engines[k].score(S, ["silhouette"])[:, :, 1].sum(axis=1)
@@ -431,6 +460,14 @@ class _DepthFrames:
                     self.margin)
         self.frames.append(frame)
         self.lk.append(lk)
+
+    def set_template(self, body) -> None:
+        self.template_body = body
+
+    @staticmethod
+    def keypoint_cost(k: int, kin, X) -> float:
+        """0: a depth dataset has no keypoints."""
+        return 0.0
 
     def cost(self, k: int, S: np.ndarray) -> np.ndarray:
         lk = self.lk[k]
@@ -608,15 +645,19 @@ class _Search:
 
     def frame_cost(self, k, shape=None):
         """Cost function ``X (N, D) -> (N,)`` of frame ``k`` for ``shape`` (default current):
-        the rig's cost plus :data:`FLOOR_PENALTY` per metre a sole reaches more than
-        :data:`FLOOR_TOLERANCE` below the views' floor (none where the feet are hidden)."""
+        the rig's cost, plus the joints' distance to the frame's triangulated keypoints where
+        the dataset has them (the tracker's keypoint cost, on the same scale: a skeleton whose
+        bones do not reach the keypoints pays for it), plus :data:`FLOOR_PENALTY` per metre a
+        sole reaches more than :data:`FLOOR_TOLERANCE` below the views' floor (none where the
+        feet are hidden)."""
         kin, maps = self.candidate(shape or self.shape)
         floor = self.views.floor if self.stands else np.inf
 
         def cost(X):
             X = np.atleast_2d(X)
             self.evaluations += len(X)
-            c = self.views.cost(k, self.template.skinning(kin, maps, X))
+            c = self.views.cost(k, self.template.skinning(kin, maps, X)) + \
+                self.views.keypoint_cost(k, kin, X)
             if np.isfinite(floor):
                 below = floor - FLOOR_TOLERANCE - lowest_sole(kin, X)
                 c = c + FLOOR_PENALTY * np.maximum(0.0, below)
@@ -866,7 +907,7 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
                 search_preset = preset
                 tbody = BodyModel.build(template.skeleton, search_preset, template.lod,
                                         mesh=template.mesh)
-                views.template_body = tbody
+                views.set_template(tbody)
         # hidden feet are not held above the floor: the hull's bottom is then the desk's edge
         feet_hidden = any("foot" in p for p in HIDDEN_PARTS.get(search_preset, ()))
         search = _Search(views, template, tbody.dofs, dataset.fps, stands=not feet_hidden)

@@ -80,6 +80,7 @@ from gltrack.body.poses import canonical_poses
 from gltrack.motion.vlmm_prior import vlmm_prior
 from gltrack.observe.blob_evidence import default_volume
 from gltrack.observe.blobs import BlobModel, place_on_centroid
+from gltrack.observe.keypoints import BODY_JOINTS, keypoint_distance
 from gltrack.observe.people import pick_person
 from gltrack.observe.model_masks import mask_covered
 from gltrack.observe.multiview import FOREGROUNDS, MultiviewObservation, SilhouetteLikelihood
@@ -131,6 +132,30 @@ def near_home(X, cost, home, max_shift: float):
                  "used", int((~near).sum()), max_shift)
         return X[near], cost[near]
     return X, cost
+
+
+def keypoint_targets(dataset, body, opt):
+    """The body joints the dataset's keypoints mark and those keypoints frame by frame.
+
+    Returns
+    -------
+    joints : list of int, indices into the body's joints (K,), or None
+    points : (F, K, 3) float64 metres (internal frame; NaN where not triangulated), or None
+        when the option is off, the dataset has no keypoints or none matches a joint
+    """
+    kp = dataset.keypoints() if opt.keypoints else None
+    if kp is None:
+        return None, None
+    tracked = [n for n in BODY_JOINTS
+               if body.dofs.preset != "upper" or n.split("_", 1)[1] not in ("knee", "ankle")]
+    pairs = [(body.skeleton.names.index(n), kp["names"].index(n)) for n in tracked
+             if n in body.skeleton.names and n in kp["names"]]
+    if not pairs:
+        log.warning("the dataset's keypoints mark none of the body's joints; not used")
+        return None, None
+    log.info("keypoints: %d joints matched with the dataset's triangulated keypoints",
+             len(pairs))
+    return [j for j, _ in pairs], kp["points"][:, [k for _, k in pairs]]
 
 
 @dataclass
@@ -263,6 +288,17 @@ class MultiviewOptions(Options):
         synthetic clips (walk, hop, salsa; 3 seeds; 84.5 / 117.0 / 80.9 mm against 80.7 /
         100.0 / 79.6) nor the Pose2Sim take (IoU within 0.02 per camera) measured better
         (docs/measurements.md, "Ground contact from the visual hull")
+    keypoints : 0 (off) or metres: how far the joints may be from the dataset's triangulated
+        body keypoints (``keypoints.npz``, which ``gltrack ingest`` writes when the landmark
+        model is installed; :mod:`gltrack.observe.keypoints`). Every weighting adds
+        ``area * d / keypoints`` pixels to a pose's silhouette error, ``d`` the mean distance
+        of its hips, knees, ankles, shoulders, elbows and wrists to their keypoints, each
+        capped at :data:`~gltrack.observe.keypoints.DISTANCE_CAP` (knees and ankles left out
+        with ``--dof upper``; joints without a keypoint in a frame left out). Why 0.15 m: the
+        keypoints are 4-6 cm from hand labels on a good frame, and at the right pose real
+        masks still leave 0.3-0.5 of the foreground area unexplained (IoU 0.6-0.8), so one
+        keypoint error (5 cm) costs about what the silhouette's own mismatch does: neither
+        cue overrules the other. A dataset without keypoints tracks on silhouettes alone
     """
 
     FLAGS: ClassVar[dict] = {"behaviour": "prior_model"}
@@ -296,6 +332,7 @@ class MultiviewOptions(Options):
     arm_sweep: int = 0
     leg_sweep: int = 0
     ground_contact: float = 0.0
+    keypoints: float = 0.15
 
     def problems(self):
         bad = super().problems() + [
@@ -307,7 +344,7 @@ class MultiviewOptions(Options):
             *choice(self, "appearance_init", APPEARANCE_INITS),
             *at_least(self, 0, "prior_lam", "prior_diffusion", "particles", "appearance_refine",
                       "sigma_scale", "shape_weight", "appearance_weight", "arm_sweep",
-                      "leg_sweep", "init_limb_sweep", "ground_contact"),
+                      "leg_sweep", "init_limb_sweep", "ground_contact", "keypoints"),
             *positive(self, "sharpness")]
         if self.prior == "vlmm" and not self.prior_model:
             bad.append("prior = \"vlmm\" needs prior_model = \"MODEL.npz\" (a behaviour model "
@@ -510,6 +547,11 @@ class MultiviewTracker(Tracker):
         #: this frame's ground reference along +Y (metres; :meth:`observe_ground`), None = none
         self.ground = None
         self._volume = default_volume(self.obs.pinholes)
+        #: the body joints matched with keypoints (indices) and their keypoints per frame
+        #: (F, K, 3), or None without keypoints
+        self._kp_joints, self._kp_points = keypoint_targets(dataset, self.body, self.opt)
+        #: this frame's keypoints (K, 3) (:meth:`observe_keypoints`), None = none
+        self.kp_target = None
 
     @property
     def appearance(self):
@@ -561,12 +603,38 @@ class MultiviewTracker(Tracker):
     def weights(self, X: np.ndarray) -> np.ndarray:
         """(N,) non-negative particle weights, larger = better (see the module docstring)."""
         e_s, c_a = self.scores(X)
-        return self._weights(e_s + self.ground_cost(X), c_a)
+        return self._weights(e_s + self.ground_cost(X) + self.keypoint_cost(X), c_a)
 
     def coarse_weights(self, X: np.ndarray) -> np.ndarray:
         """:meth:`weights` of the coarse mesh (``fine_layers``; the tracked mesh without one)."""
         e_s, c_a = self.likelihood.scores(X, coarse=True)
-        return self._weights(e_s + self.ground_cost(X), c_a)
+        return self._weights(e_s + self.ground_cost(X) + self.keypoint_cost(X), c_a)
+
+    def observe_keypoints(self, frame: int) -> None:
+        """Set :attr:`kp_target` to ``frame``'s keypoints (None without any)."""
+        self.kp_target = None if self._kp_points is None else self._kp_points[frame]
+
+    def keypoint_distance(self, X: np.ndarray) -> np.ndarray:
+        """(N,) metres: mean capped distance of the matched joints to this frame's keypoints
+        (:func:`gltrack.observe.keypoints.keypoint_distance`; NaN without keypoints)."""
+        if self.kp_target is None:
+            return np.full(len(X), np.nan)
+        joints = self.body.joints(X)[:, self._kp_joints]
+        return keypoint_distance(joints, self.kp_target)
+
+    def keypoint_cost(self, X: np.ndarray) -> np.ndarray | float:
+        """(N,) silhouette-error pixels for the joints' distance to this frame's keypoints:
+        ``area * distance / keypoints`` (0 without keypoints; see ``keypoints``)."""
+        if self.kp_target is None:
+            return 0.0
+        d = self.keypoint_distance(X)
+        if not np.isfinite(d).any():
+            return 0.0
+        return self.area * d / self.opt.keypoints
+
+    def start_cost(self, X: np.ndarray) -> np.ndarray:
+        """(N,) the automatic start's ranking: silhouette error plus :meth:`keypoint_cost`."""
+        return self.likelihood.scores(X)[0] + self.keypoint_cost(X)
 
     def ground_cost(self, X: np.ndarray) -> np.ndarray | float:
         """(N,) silhouette-error pixels added for a lowest joint more than the allowance
@@ -632,7 +700,9 @@ class MultiviewTracker(Tracker):
         (best particle or estimate) with the lowest silhouette error starts the tracker. The
         best refined pose of each heading is also tried with its legs and arms exchanged
         (mirrored), refined the same way, and with each limb swept over a grid
-        (``init_limb_sweep``), refined again where a limb moved.
+        (``init_limb_sweep``), refined again where a limb moved. Where the dataset has
+        keypoints, every ranking here adds their cost (:meth:`start_cost`), so the heading
+        and the sides whose joints meet the keypoints win.
 
         Why each on its own: a silhouette fits about as well turned by 180 degrees, and one
         particle set seeded at both headings often settled on the wrong one (3 of 6 runs on the
@@ -651,6 +721,7 @@ class MultiviewTracker(Tracker):
         yaw = d.index("pelvis_ry")
         images, masks = self.obs(frame)
         self.observe_ground(masks)
+        self.observe_keypoints(frame)
         volume = self._volume
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=2, distort=False)
         if len(hull) == 0:
@@ -668,7 +739,7 @@ class MultiviewTracker(Tracker):
         P = place_on_centroid(self.body, BlobModel(self.body.mesh, self.body.skeleton), library,
                               o.init_headings, centroid)
         self.likelihood.observe(frame)
-        e_s = self.likelihood.scores(P)[0]
+        e_s = self.start_cost(P)
         seeds = P[np.argsort(e_s)[:o.init_keep]]
         # each seed also turned round: a silhouette fits about as well either way
         twins = seeds.copy()
@@ -688,7 +759,7 @@ class MultiviewTracker(Tracker):
         for seed in seeds:
             final += refine(seed)
         final = d.validate(np.stack(final))
-        e_final = self.likelihood.scores(final)[0]
+        e_final = self.start_cost(final)
         # The best refined pose of each heading (and its turned-round twin) with the legs and
         # arms exchanged (mirrored), refined the same way: a refinement from a standing library
         # pose settles a stride with either leg forward, a silhouette fits either about as
@@ -698,7 +769,7 @@ class MultiviewTracker(Tracker):
             mirrors = d.validate(exchange_limbs(np.stack(two_modes(final, e_final, yaw)), pairs))
             more = np.concatenate([mirrors, d.validate(np.stack([p for m in mirrors for p in refine(m)]))])
             final = np.concatenate([final, more])
-            e_final = np.concatenate([e_final, self.likelihood.scores(more)[0]])
+            e_final = np.concatenate([e_final, self.start_cost(more)])
         # The best refined pose of each heading with each limb swept over a grid, refined again
         # where a limb moved: a limb the refinement left hanging beside the body (a raised leg,
         # a raised arm) is in a narrow basin that the sampler's diffusion seldom reaches.
@@ -706,13 +777,13 @@ class MultiviewTracker(Tracker):
             grids = limb_grid(d, o.init_limb_sweep)
             swept = []
             for m in two_modes(final, e_final, yaw):
-                sw = sweep_limbs(m, lambda X: -self.likelihood.scores(X)[0], grids)
+                sw = sweep_limbs(m, lambda X: -self.start_cost(X), grids)
                 if sw.improved:
                     swept += [sw.estimate, *refine(sw.estimate)]
             if swept:
                 more = d.validate(np.stack(swept))
                 final = np.concatenate([final, more])
-                e_final = np.concatenate([e_final, self.likelihood.scores(more)[0]])
+                e_final = np.concatenate([e_final, self.start_cost(more)])
         # a refined pose that left the hull has explained the person away (masks that miss
         # much of the person, e.g. a still torso, make a model out of view score well): it may
         # not start the tracker while one near the person does
@@ -784,6 +855,7 @@ class MultiviewTracker(Tracker):
             self.obs.model = None
         # blocked pixels (occluders) may hide the person: they do not carve the hull away
         self.observe_ground([f | b for f, b in zip(fgs, blocks)])
+        self.observe_keypoints(frame)
         if self.opt.velocity:
             self.particles = self.body.dofs.validate(self.particles + self.opt.velocity * self.velocity)
         predict = self.prior.predict if self.prior is not None else None
@@ -834,6 +906,9 @@ class MultiviewTracker(Tracker):
                 "ess": float(res.weights.ess), "weightings": len(res.layers)}
         if self._limb_grids:
             info["limb_sweep"] = list(swept)
+        if self.kp_target is not None:
+            d = float(self.keypoint_distance(x[None])[0])
+            info["keypoint_m"] = None if not np.isfinite(d) else round(d, 4)
         if c_a is not None:
             info["c_a"] = c_a
         if self.refines_masks:
