@@ -1,7 +1,6 @@
 """Body keypoints (:mod:`gltrack.observe.keypoints`): the robust triangulation, the landmark
 model on real frames (OpenCV's DNN; skipped without the model or ../shared), ``keypoints.npz``
 in a dataset, ``gltrack ingest`` writing it, and the multi-view tracker's keypoint cost."""
-import dataclasses
 import json
 
 import cv2
@@ -14,16 +13,9 @@ from gltrack.observe.keypoints import (BODY_JOINTS, DISTANCE_CAP, LANDMARKS, MIR
                                        keypoint_distance, triangulate_keypoints)
 
 from conftest import REPO
+from test_triangulate import rig as _rig  # four distorted cameras round a person
 
 LABELS = REPO / "scripts" / "data" / "pose2sim_balancing_keypoints.json"
-
-
-def _rig():
-    cams = []
-    for k, (x, z) in enumerate([(3, 0), (0, 3), (-3, 0.5), (0.5, -3)]):
-        c = look_at_camera(f"c{k}", (x, 1.6, z), (0, 1.0, 0), 640, 480, 50)
-        cams.append(dataclasses.replace(c, dist=np.array([-0.1, 0.04, 0.001, -0.002, 0.0])))
-    return cams
 
 
 def _model():
