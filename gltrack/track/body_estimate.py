@@ -323,7 +323,10 @@ class _SilhouetteFrames:
         from .multiview import HpsOptions, keypoint_targets
 
         self.template_body = body
-        self.kp_joints, self.kp_points = keypoint_targets(self.dataset, body, HpsOptions())
+        opt = HpsOptions()
+        self.kp_joints, self.kp_points = keypoint_targets(self.dataset, body, opt)
+        #: metres of mean distance that cost the whole area (the tracker's default scale)
+        self.kp_scale = opt.keypoints
 
     def keypoint_cost(self, k: int, kin, X) -> np.ndarray | float:
         """(N,) pixels for frame ``k``: the tracker's keypoint cost
@@ -335,9 +338,7 @@ class _SilhouetteFrames:
         d = keypoint_distance(kin.forward(X).positions[:, self.kp_joints], target)
         if not np.isfinite(d).any():
             return 0.0
-        from .multiview import HpsOptions
-
-        return area * d / HpsOptions.keypoints
+        return area * d / self.kp_scale
 
     def measure(self, frame: int) -> tuple[float, np.ndarray]:
         """Height (metres, top to bottom plus one voxel) and centroid (3,) of the frame's
