@@ -290,6 +290,70 @@ def test_support_column_from_the_floor_to_the_centroid():
                             floor=((0, 0, 0), 0.0))
 
 
+def test_prior_bounds_the_spill_fills_holes_and_loses_a_one_view_blob(moving):
+    """The "prior" cue on masks the test spoils: every view's mask spills 6 px past the body
+    and has a hole in the torso; camera 0's prior also takes a blob no other view sees (a
+    second person). The prior's consistent pixels plus the masks' edge next to them come back;
+    a frame whose prior is missing in two views keeps its masks."""
+    cams, frames, truth, dis = moving
+    est = SequenceForeground(frames, cams, rng=np.random.default_rng(1))
+    spoilt, prior = [], []
+    for c in range(4):
+        m = np.stack([dilate_mask(g, 6) for g in truth[c]])
+        ys, xs = np.nonzero(truth[c][5])
+        m[5, int(ys.mean()) - 3:int(ys.mean()) + 3, int(xs.mean()) - 3:int(xs.mean()) + 3] = False
+        spoilt.append(m)
+        q = truth[c].copy()
+        if c == 0:
+            q |= dis
+        prior.append(q)
+    prior[1][7] = False
+    prior[2][7] = False
+    out, used = est.with_prior(spoilt, prior)
+    r = ForegroundParams().prior_margin
+    for c in range(4):
+        for t in (0, 5, 11):
+            # the hole is filled; of the spill, only the margin next to the prior stays
+            assert np.all(out[c][t] >= truth[c][t]) and np.all(used[c][t] == truth[c][t])
+            assert np.all(out[c][t] <= dilate_mask(truth[c][t], r + 1))
+            assert not np.all(spoilt[c][t] <= dilate_mask(truth[c][t], r + 1))
+            assert _iou(out[c][t], truth[c][t]) > _iou(spoilt[c][t], truth[c][t]) + 0.1
+        assert np.array_equal(out[c][7], spoilt[c][7]) and not used[c][7].any()
+    assert out[0][dis].mean() < 0.02 and used[0][dis].mean() < 0.02
+    # a prior that changes changes the masks: the prior's pixels are the masks' core
+    shifted = [np.roll(q, 4, axis=2) for q in prior]
+    moved, _ = est.with_prior(spoilt, shifted)
+    assert not np.array_equal(moved[3][0], out[3][0])
+
+
+def test_person_prior_in_the_whole_chain():
+    """A subject that barely moves (the cues miss its torso) with a probability prior (uint8,
+    half the image size): the masks come close to the truth, within the margin of the prior;
+    the prior is recorded as a stage, and is off when the cue is left out."""
+    rng = np.random.default_rng(3)
+    cams, frames, truth, dis = _scene(rng, np.linspace(-0.3, -0.1, 12))
+    half = [np.stack([cv2.resize(g.astype(np.uint8) * 255, (W // 2, H // 2),
+                                 interpolation=cv2.INTER_AREA) for g in gs]) for gs in truth]
+    plain = estimate_foreground(frames, cams, rng=np.random.default_rng(1))
+    with_prior = estimate_foreground(frames, cams, rng=np.random.default_rng(1),
+                                     person_prior=half)
+    assert "prior" in with_prior.stages and "prior" not in plain.stages
+    a, b = _mean_iou(plain.masks, truth), _mean_iou(with_prior.masks, truth)
+    assert np.all(b > a + 0.1), (a, b)
+    r = ForegroundParams().prior_margin
+    for m, g in zip(with_prior.masks, truth):
+        for t in range(len(g)):
+            # the truth's upsampled half-size prior is within a pixel of the truth
+            assert np.all(m[t] <= dilate_mask(g[t], r + 1))
+            assert np.mean(g[t] & ~m[t]) < 0.002
+    assert with_prior.masks[0][dis].mean() < 0.02
+    off = estimate_foreground(frames, cams, rng=np.random.default_rng(1), person_prior=half,
+                              cues=[c for c in CUES if c != "prior"])
+    assert all(np.array_equal(x, y) for x, y in zip(off.masks, plain.masks))
+    with pytest.raises(ValueError, match=r"person_prior\[1\] has 2 frames"):
+        estimate_foreground(frames, cams, person_prior=[half[0], half[1][:2], None, None])
+
+
 def test_helpers_and_errors():
     cams = _cameras()
     b = shared_volume(cams)
@@ -317,6 +381,8 @@ def test_helpers_and_errors():
         ForegroundParams(ghost_recurrence=0.0)
     with pytest.raises(ValueError, match="ForegroundParams.ghost_gap"):
         ForegroundParams(ghost_gap=-0.1)
+    with pytest.raises(ValueError, match="ForegroundParams.prior_margin"):
+        ForegroundParams(prior_margin=-1)
 
 
 def _pose2sim_cameras(folder, sizes):

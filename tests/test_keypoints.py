@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from gltrack.camera import look_at_camera, triangulate
-from gltrack.observe.keypoints import (BODY_JOINTS, DISTANCE_CAP, LANDMARKS, MIRROR, NAMES,
-                                       PoseLandmarker, detect_sequence, find_model,
-                                       keypoint_distance, triangulate_keypoints)
+from gltrack.observe.keypoints import (BODY_JOINTS, DISTANCE_CAP, INPUT, LANDMARKS, MIRROR,
+                                       NAMES, Detection, PoseLandmarker, detect_sequence,
+                                       find_model, keypoint_distance, segmentation_size,
+                                       triangulate_keypoints)
 
 from conftest import REPO
 from test_triangulate import rig as _rig  # four distorted cameras round a person
@@ -77,6 +78,38 @@ def test_keypoint_distance_is_the_mean_capped_distance():
     assert np.isnan(keypoint_distance(joints, np.full((3, 3), np.nan))).all()
 
 
+def test_person_probability_maps_the_crop_back_to_the_image():
+    """The segmentation of a rotated, scaled crop goes back where the crop came from: a square
+    of "person" logits in the crop lands on the image pixels that map into that square, at
+    the image's size and at a smaller one."""
+    H, W = 90, 120
+    a, s = np.radians(30), 2.0  # crop pixels per image pixel, and the crop's rotation
+    A = s * np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+    M = np.hstack([A, (np.array([INPUT / 2, INPUT / 2]) - A @ np.array([60.0, 45.0]))[:, None]])
+    logits = np.full((INPUT, INPUT), -20.0, np.float32)
+    logits[100:160, 90:150] = 20.0
+    det = Detection(np.zeros((33, 2)), np.ones(33), 1.0, logits, M)
+    p = det.person_probability((H, W))
+    assert p.shape == (H, W) and p.dtype == np.float32
+    v, u = np.mgrid[0:H, 0:W]
+    cx, cy = np.moveaxis(np.tensordot(M[:, :2], np.stack([u, v]), 1), 0, -1).transpose(2, 0, 1) \
+        + M[:, 2][:, None, None]
+    inside = (cx >= 91) & (cx <= 148) & (cy >= 101) & (cy <= 158)
+    outside = (cx < 88) | (cx > 151) | (cy < 98) | (cy > 161)
+    assert inside.sum() > 500 and np.all(p[inside] > 0.99) and np.all(p[outside] < 0.01)
+    # a smaller output is the same picture
+    w, h = segmentation_size(W, H, 60)
+    assert (w, h) == (60, 45)
+    small = det.person_probability((H, W), (w, h))
+    back = cv2.resize(small, (W, H), interpolation=cv2.INTER_LINEAR) > 0.5
+    assert np.mean(back != (p > 0.5)) < 0.02
+    # the output follows the logits; nothing found is all zeros
+    logits[100:160, 90:150] = -20.0
+    assert det.person_probability((H, W)).max() < 0.01
+    assert Detection.empty().person_probability((H, W)).max() == 0.0
+    assert segmentation_size(W, H, None) == (W, H) and segmentation_size(W, H, 500) == (W, H)
+
+
 def _labelled_frame(shared, frame=50, cam="cam_01"):
     video = shared / "video" / "pose2sim_balancing_4cam" / f"{cam.replace('_', '')}.mp4"
     if not video.is_file():
@@ -113,9 +146,15 @@ def test_the_model_finds_the_joints_a_person_labelled(shared):
                                                             img.shape[1] - 1 - lo[0] + pad[0],
                                                             hi[1] + pad[1]))
     assert np.median(np.abs(flipped.uv[:, 0] - det.uv[:, 0])) > 50
+    # the person's segmentation holds the labelled joints and not much more than the person
+    prob = det.person_probability(img.shape[:2])
+    on = [prob[int(round(v[1])), int(round(v[0]))] > 0.5 for v in labels.values()]
+    assert np.mean(on) >= 0.8, on
+    assert 0.03 < np.mean(prob > 0.5) < 0.3
     # nobody in the picture: nothing found
     blank, none = landmarker.detect(np.full_like(img, 128))
     assert blank.presence == 0.0 and none is None and np.isnan(blank.uv).all()
+    assert blank.person_probability(img.shape[:2]).max() == 0.0
 
 
 def test_detect_sequence_starts_from_the_mask_and_follows(shared):
@@ -130,9 +169,10 @@ def test_detect_sequence_starts_from_the_mask_and_follows(shared):
     mask[:40, :40] = True  # a small blob elsewhere: the largest one places the crop
     small = cv2.resize(mask.astype(np.uint8), (mask.shape[1] // 4, mask.shape[0] // 4)) > 0
     calls = []
-    uv, vis, pres = detect_sequence(landmarker, [img, img], [small, small],
-                                    progress=lambda: calls.append(1))
+    uv, vis, pres, seg = detect_sequence(landmarker, [img, img], [small, small],
+                                         progress=lambda: calls.append(1), segment=480)
     assert uv.shape == (2, 33, 2) and vis.shape == (2, 33) and len(calls) == 2
+    assert seg.shape == (2, 480, 270) and seg.dtype == np.uint8 and (seg > 127).mean() > 0.03
     assert (pres > 0.9).all()
     err = [np.hypot(*(uv[1, LANDMARKS[j]] - v[:2])) for j, v in labels.items() if j != "nose"]
     assert np.median(err) < 30
@@ -175,6 +215,37 @@ def test_dataset_keypoints_round_trip_and_bad_files(tmp_path):
     assert Dataset.open(tmp_path / "none").keypoints() is None
 
 
+def test_detect_sequence_searches_back_for_the_frames_it_missed(shared):
+    """The labelled frame at half size in the middle of a black canvas six times that: the
+    whole canvas is too coarse a crop to find the person, so frame 0 (no mask) is missed at
+    first; frame 1 is found from its mask, and frame 0 again from frame 1's crop. A blank
+    frame stays empty."""
+    landmarker = PoseLandmarker(_model())
+    img, labels = _labelled_frame(shared)
+    img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    H, W = img.shape[:2]
+    canvas = np.zeros((6 * H, 6 * W, 3), np.uint8)
+    oy, ox = 5 * H // 2, 5 * W // 2
+    canvas[oy:oy + H, ox:ox + W] = img
+    pts = 0.5 * np.array([v[:2] for v in labels.values()]) + [ox, oy]
+    # a silhouette's box reaches past the labelled joints: the head above, the feet below
+    pad = 0.15 * (pts.max(0) - pts.min(0))
+    lo, hi = (pts.min(0) - pad).astype(int), (pts.max(0) + pad).astype(int)
+    mask = np.zeros(canvas.shape[:2], bool)
+    mask[lo[1]:hi[1], lo[0]:hi[0]] = True
+    first, _ = landmarker.detect(canvas)
+    assert first.presence < 0.5  # what the forward pass alone leaves in frame 0
+    uv, vis, pres = detect_sequence(landmarker, [canvas, canvas], [None, mask])
+    assert (pres > 0.9).all()
+    # as close to the hand labels as a full-size frame's detection (30 px at full size)
+    err = [np.hypot(*(uv[0, LANDMARKS[j]] - (0.5 * np.array(v[:2]) + [ox, oy])))
+           for j, v in labels.items() if j != "nose"]
+    assert np.median(err) < 15, err
+    blank = np.zeros_like(canvas)
+    uv, vis, pres = detect_sequence(landmarker, [blank, canvas], [None, mask])
+    assert pres[0] == 0.0 and np.isnan(uv[0]).all() and pres[1] > 0.9
+
+
 def test_ingest_writes_the_keypoints_of_the_shared_take(shared, tmp_path, monkeypatch):
     """Three labelled-neighbourhood frames of the Pose2Sim take: every camera finds the person,
     the triangulated joints are within 10 cm of the hand labels' triangulation, and
@@ -195,7 +266,10 @@ def test_ingest_writes_the_keypoints_of_the_shared_take(shared, tmp_path, monkey
     k = r["keypoints"]
     assert k["model"] == "pose_landmark_full.tflite" and k["found"] == [1.0] * 4
     ds = Dataset.open(tmp_path / "p2s")
-    assert json.loads((tmp_path / "p2s" / "meta.json").read_text())["keypoints"] == k
+    meta = json.loads((tmp_path / "p2s" / "meta.json").read_text())
+    assert meta["keypoints"] == k
+    # the landmark model's segmentation shaped every camera's masks (the "prior" cue)
+    assert "prior" in meta["masks"]["cues"] and meta["masks"]["prior_fraction"] == [1.0] * 4
     kp = ds.keypoints()
     body = [LANDMARKS[j] for j in BODY_JOINTS]
     assert np.isfinite(kp["points"][:, body]).all()

@@ -43,7 +43,12 @@ What :func:`ingest` does, in order, failing before anything is written on bad in
    extracting gigabytes by accident.
    ``meta.json``'s ``"source"`` records the calibration, its format, each camera's video, its
    size and the video frame of every dataset frame, the scale and the synchronisation used.
-9. **Foreground masks** (``masks="auto"``, the default; :func:`write_masks`): real footage has
+9. **Keypoints** (``keypoints="auto"``, when the landmark model is installed;
+   :func:`write_keypoints`): MediaPipe's pose landmarks in every camera, triangulated, written
+   as ``keypoints.npz``. They come before the masks because the same network also segments the
+   person, and that segmentation is the masks' ``"prior"`` cue; each camera's first crop is
+   then the whole image (the person is found in it on both shared takes).
+10. **Foreground masks** (``masks="auto"``, the default; :func:`write_masks`): real footage has
    no empty-scene frames, so the multi-view trackers (which read ``camN_mask/`` when every
    camera has it, else subtract ``camN_background.png``) need masks estimated from the sequence
    itself: :func:`gltrack.observe.foreground.estimate_foreground` runs over the written frames
@@ -590,14 +595,17 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
                 writer.write_colour(j, k, _resize(img, sizes[k]))
                 bar.update(1)
         bar.close()
+        # keypoints first: the landmark model's person segmentation is the masks' "prior"
+        # cue (its first crops then start from the whole image, not from a mask's blob)
+        kp_meta, prior = None, None
+        if model is not None:
+            kp_meta, prior = write_keypoints(writer, len(fmap), model, with_masks=False,
+                                             segment=masks == "auto")
+            writer.extra_meta["keypoints"] = kp_meta
         mask_meta = None
         if masks == "auto":
-            mask_meta = write_masks(writer, len(fmap), floor=floor)
+            mask_meta = write_masks(writer, len(fmap), floor=floor, person_prior=prior)
             writer.extra_meta["masks"] = mask_meta
-        kp_meta = None
-        if model is not None:
-            kp_meta = write_keypoints(writer, len(fmap), model, with_masks=masks == "auto")
-            writer.extra_meta["keypoints"] = kp_meta
     written = sum(p.stat().st_size for p in out.rglob("*.png"))
     return {"path": out, "frames": len(fmap), "fps": out_fps,
             "cameras": [c.name for c in internal], "sizes": [list(s) for s in sizes],
@@ -606,7 +614,7 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
             "keypoints": kp_meta}
 
 
-def write_masks(writer, frames, params=None, floor=None):
+def write_masks(writer, frames, params=None, floor=None, person_prior=None):
     """Estimate the foreground of the frames a :class:`DatasetWriter` holds and write them.
 
     The colour frames already written (in the writer's temporary folder) are read back one at a
@@ -623,12 +631,16 @@ def write_masks(writer, frames, params=None, floor=None):
     floor : float, optional
         The floor's height along the writer's cameras' +Y (internal frame); without it the
         ``"support"`` cue is off.
+    person_prior : list (C) of (frames, h, w) uint8, optional
+        A person segmentation (probability times 255; :func:`write_keypoints`), the
+        ``"prior"`` cue; without it that cue is off.
 
     Returns
     -------
     dict
         What ``meta.json`` records as ``"masks"``: ``method``, ``cues``, ``passes``,
-        ``work_size``, ``seconds``, ``foreground_fraction`` (per camera).
+        ``work_size``, ``seconds``, ``foreground_fraction`` (per camera), and with a prior
+        ``prior_fraction`` (per camera: the fraction of frames whose mask the prior shaped).
     """
     import time
 
@@ -637,7 +649,8 @@ def write_masks(writer, frames, params=None, floor=None):
 
     params = params or ForegroundParams()
     cams = writer.cameras
-    cues = [c for c in CUES if c != "support" or floor is not None]
+    cues = [c for c in CUES if (c != "support" or floor is not None)
+            and (c != "prior" or person_prior is not None)]
 
     def feed(cam):
         for j in range(frames):
@@ -652,7 +665,7 @@ def write_masks(writer, frames, params=None, floor=None):
              ", ".join(cues))
     t0 = time.perf_counter()
     res = estimate_foreground([feed(c) for c in cams], cams, params=params, cues=cues,
-                              floor=level_floor(floor))
+                              floor=level_floor(floor), person_prior=person_prior)
     for k, cam in enumerate(cams):
         for j in range(frames):
             m = res.masks[k][j]
@@ -664,12 +677,18 @@ def write_masks(writer, frames, params=None, floor=None):
     frac = [round(float(f), 4) for f in res.foreground_fraction()]
     log.info("foreground: masks written in %.0f s; foreground fraction per camera %s", seconds,
              ", ".join(f"{c.name} {f:.3f}" for c, f in zip(cams, frac)))
-    return {"method": "sequence-foreground", "cues": cues, "passes": int(params.passes),
+    meta = {"method": "sequence-foreground", "cues": cues, "passes": int(params.passes),
             "work_size": int(params.work_size), "seconds": round(seconds, 1),
             "foreground_fraction": frac}
+    if "prior" in res.stages:
+        shaped = [round(float(np.mean(u.any(axis=(1, 2)))), 3) for u in res.stages["prior"]]
+        meta["prior_fraction"] = shaped
+        log.info("foreground: the person prior shaped %s of the frames",
+                 ", ".join(f"{f:.0%}" for f in shaped))
+    return meta
 
 
-def write_keypoints(writer, frames, model, with_masks=True):
+def write_keypoints(writer, frames, model, with_masks=True, segment=False):
     """Find the body landmarks of the frames a :class:`DatasetWriter` holds, triangulate them
     and write ``keypoints.npz`` (:func:`gltrack.observe.keypoints.detect_keypoints`).
 
@@ -679,17 +698,21 @@ def write_keypoints(writer, frames, model, with_masks=True):
     frames : int
     model : path, the landmark model
     with_masks : bool, the writer holds masks (they place each camera's first crop)
+    segment : bool, also return the model's person segmentation (at the foreground's working
+        size, :class:`gltrack.observe.foreground.ForegroundParams`)
 
     Returns
     -------
-    dict
+    meta : dict
         What ``meta.json`` records as ``"keypoints"``: ``model`` (file name), ``seconds``,
         ``found`` (per camera: the fraction of frames with a person), ``residual_px``
         (median reprojection residual per camera), ``swapped`` (per camera: frames whose
         left and right were exchanged).
+    segmentation : list (C) of (frames, h, w) uint8, or None without ``segment``
     """
     import time
 
+    from gltrack.observe.foreground import ForegroundParams
     from gltrack.observe.keypoints import detect_keypoints
 
     cams = writer.cameras
@@ -706,7 +729,8 @@ def write_keypoints(writer, frames, model, with_masks=True):
     log.info("keypoints: finding body landmarks in %d frames x %d cameras", frames, len(cams))
     kp = detect_keypoints(cams, [read(c, "colour", cv2.IMREAD_COLOR) for c in cams],
                           [read(c, "mask", cv2.IMREAD_GRAYSCALE) for c in cams]
-                          if with_masks else None, model=model)
+                          if with_masks else None, model=model,
+                          segment=ForegroundParams().work_size if segment else None)
     writer.write_keypoints(kp["uv"], kp["visibility"], kp["points"], kp["residual"],
                            kp["names"])
     seconds = time.perf_counter() - t0
@@ -721,7 +745,7 @@ def write_keypoints(writer, frames, model, with_masks=True):
     log.info("keypoints: %s in %.0f s; person found in %s of the frames; median residual %s px",
              meta["model"], seconds, ", ".join(f"{f:.0%}" for f in found),
              ", ".join("-" if r is None else f"{r:.1f}" for r in res))
-    return meta
+    return meta, kp.get("segmentation")
 
 
 def _resize(img, size):

@@ -60,6 +60,15 @@ on their own (``cues=``):
    temporal background nor the colour test takes; in the upper half, bits of the scene that
    the column's carve let through (the legs of the person behind) go.
 
+7. **prior** (a person segmentation, given as ``person_prior=``; ``gltrack ingest`` passes the
+   segmentation that the pose landmark model computes with its landmarks,
+   :mod:`gltrack.observe.keypoints`): its pixels are left out of the background like person
+   masks, and the final masks are the prior's multi-view consistent pixels plus the other
+   cues' pixels next to them (:meth:`SequenceForeground.with_prior`). Where the prior is
+   missing (the person not found) the other cues stand alone. Measured on the Pose2Sim take
+   (docs/measurements.md): the GrabCut spill onto the skin-coloured cupboards goes and the
+   still torso's holes fill.
+
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
 masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
 pass the projected silhouettes of its model as ``person_masks`` for the same effect.
@@ -107,7 +116,7 @@ from .voxels import carve, centre_pixels, pixel_boxes
 
 log = logging.getLogger(__name__)
 
-CUES = ("hull", "grabcut", "shadows", "ghosts", "support")
+CUES = ("hull", "grabcut", "shadows", "ghosts", "support", "prior")
 #: first quartile of |x| for x ~ N(0, 1)
 _Q25 = 0.31864
 
@@ -465,6 +474,11 @@ class ForegroundParams:
     ghost_gap : float
         Background frames within this fraction of the take of the tested frame do not count
         for the ghost test (a part moving slowly looks the same in the next few frames).
+    prior_margin : int, pixels
+        The other cues' pixels within this distance of the person prior's stay (cue
+        ``"prior"``, :meth:`SequenceForeground.with_prior`): about one pixel of the landmark
+        model's 256-pixel segmentation, whose crop is 1.25 times a standing person's height
+        (at ``work_size`` 480, 1.5-2 pixels); the prior's edge is uncertain by that much.
     support_reach : float, metres
         Half the width of the support column (cue ``"support"``, :func:`support_column`) under
         the hull's centroid: in static balance the centre of mass is above the support, and a
@@ -508,6 +522,7 @@ class ForegroundParams:
     passes: int = 2
     ghost_recurrence: float = 0.25
     ghost_gap: float = 0.05
+    prior_margin: int = 2
 
     def __post_init__(self):
         if int(self.work_size) < 32:
@@ -524,6 +539,9 @@ class ForegroundParams:
                              f"{self.min_observed}")
         if not self.body_margin >= 0:
             raise ValueError(f"ForegroundParams.body_margin must be >= 0, got {self.body_margin}")
+        if int(self.prior_margin) < 0:
+            raise ValueError(f"ForegroundParams.prior_margin must be >= 0, got "
+                             f"{self.prior_margin}")
         if int(self.passes) < 1:
             raise ValueError(f"ForegroundParams.passes must be >= 1, got {self.passes}")
         if int(self.max_background_frames) < 1:
@@ -1222,11 +1240,19 @@ class SequenceForeground:
                 out[c][t] = m
         return out, stages, bgs, knowns
 
-    def run(self, person_masks=None, cues=CUES, passes: int | None = None) -> ForegroundResult:
+    def run(self, person_masks=None, cues=CUES, passes: int | None = None,
+            person_prior=None) -> ForegroundResult:
         """All passes; see :func:`estimate_foreground` for the parameters."""
         p = self.params
         passes = int(p.passes if passes is None else passes)
         given = [self._person_stack(c, person_masks) for c in range(len(self.cameras))]
+        prior = None
+        if "prior" in cues and person_prior is not None:
+            prior = [self._prior_stack(c, person_prior) for c in range(len(self.cameras))]
+            # where the prior says "person", the subject is left out of the background and is
+            # never a ghost, as for given person masks
+            given = [g if q is None else (q if g is None else g | q)
+                     for g, q in zip(given, prior)]
         given = [None if g is None else self._dilate_stack(g) for g in given]
         exclude = given if any(g is not None for g in given) else None
         for k in range(passes):
@@ -1234,6 +1260,8 @@ class SequenceForeground:
             # to leave out of the next background, which the hull-consistent masks do
             use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
             masks, stages, bgs, knowns = self.run_pass(exclude, use, given)
+            if prior is not None:
+                masks, stages["prior"] = self.with_prior(masks, prior)
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
             # the next background leaves out this pass's masks (dilated). Their convex hull
@@ -1244,13 +1272,77 @@ class SequenceForeground:
         return ForegroundResult(masks, list(self.cameras), bgs, knowns, stages,
                                 list(self.full_size))
 
+    def with_prior(self, masks, prior):
+        """Combine the cues' masks with a person prior (cue ``"prior"``).
+
+        Per frame, the prior's own visual hull is carved (:meth:`hull`); each camera keeps the
+        prior's pixels near that hull's reprojection (multi-view consistent: a view whose prior
+        took another person, or a poster, loses them), and the cues' pixels within
+        ``prior_margin`` of those. The prior fills what the cues miss (clothes the colour of the
+        background, a part that never moved) and bounds what they spill (GrabCut taking in a
+        cupboard of the skin's colour); the cues keep the edge where the prior is a few pixels
+        short. A frame whose prior has no hull (the person not found in enough views) keeps
+        the cues' masks, and so does a camera whose prior is empty.
+
+        Parameters
+        ----------
+        masks : list (C) of (T, h, w) bool, the cues' masks
+        prior : list (C) of (T, h, w) bool or None (per camera)
+
+        Returns
+        -------
+        masks : list (C) of (T, h, w) bool; used : list (C) of (T, h, w) bool, the prior's
+        multi-view consistent pixels
+        """
+        C = len(self.cameras)
+        r = self.params.prior_margin
+        out = [m.copy() for m in masks]
+        used = [np.zeros_like(m) for m in masks]
+        empty = np.zeros((0, 0), bool)
+        for t in range(self.T):
+            frame = [empty if prior[c] is None else prior[c][t] for c in range(C)]
+            if sum(bool(m.any()) for m in frame) < C - self.tolerance:
+                continue
+            sil, _, (lo, _) = self.hull([m if m.size else np.zeros_like(masks[c][t])
+                                         for c, m in enumerate(frame)])
+            if len(lo) == 0:
+                continue
+            for c in range(C):
+                if not frame[c].any():
+                    continue
+                ok = frame[c] & dilate_mask(sil[c], self.params.hull_margin)
+                used[c][t] = ok
+                out[c][t] = (masks[c][t] & dilate_mask(ok, r)) | ok
+        return out, used
+
+    def _prior_stack(self, c, person_prior):
+        """(T, h, w) bool: camera c's person prior (probability >= 0.5) at the working size."""
+        if person_prior[c] is None:
+            return None
+        pp = person_prior[c]
+        if len(pp) != self.T:
+            raise ValueError(f"person_prior[{c}] has {len(pp)} frames, the sequence {self.T}")
+        cam = self.cameras[c]
+        out = np.zeros((self.T, cam.height, cam.width), bool)
+        for t, q in enumerate(pp):
+            q = np.asarray(q)
+            if q.ndim != 2:
+                raise ValueError(f"person_prior[{c}][{t}] must be (H, W), got {q.shape}")
+            # uint8 is a probability times 255, floats a probability
+            q = q.astype(np.float32) / 255.0 if q.dtype == np.uint8 else q.astype(np.float32)
+            if q.shape != (cam.height, cam.width):
+                q = cv2.resize(q, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
+            out[t] = q >= 0.5
+        return out
+
     def _dilate_stack(self, stack):
         return np.stack([dilate_mask(m, self.params.exclude_margin) for m in stack])
 
 
 def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=None,
                         cues=CUES, params: ForegroundParams | None = None,
-                        passes: int | None = None, floor=None) -> ForegroundResult:
+                        passes: int | None = None, floor=None,
+                        person_prior=None) -> ForegroundResult:
     """Foreground masks of a synchronised multi-camera sequence without empty-scene frames.
 
     Parameters
@@ -1269,18 +1361,23 @@ def estimate_foreground(frames_by_camera, cameras, *, person_masks=None, rng=Non
         and the seed is 0 (deterministic either way).
     cues : iterable of str
         Cues to use, a subset of :data:`CUES` (``"hull", "grabcut", "shadows", "ghosts",
-        "support"``); the temporal background is always used, ``"support"`` needs ``floor``
-        and ``"hull"`` and ``"grabcut"`` (it runs beside GrabCut). Leave cues out to measure
+        "support", "prior"``); the temporal background is always used, ``"support"`` needs
+        ``floor`` and ``"hull"`` and ``"grabcut"`` (it runs beside GrabCut), ``"prior"`` needs
+        ``person_prior``. Leave cues out to measure
         what each contributes.
     params : ForegroundParams, optional
     passes : int, optional, overrides ``params.passes``
     floor : (normal (3,), height), optional
         The floor plane ``normal @ x == height`` (``normal`` a unit up vector in the cameras'
         world); the ``"support"`` cue needs it and is off without it.
+    person_prior : sequence (C) of (T, H, W) person probabilities (or None per camera), optional
+        A person segmentation (uint8: probability times 255; floats: probability), at any
+        uniform scaling of the images: the ``"prior"`` cue
+        (:meth:`SequenceForeground.with_prior`); off without it.
 
     Returns
     -------
     ForegroundResult, masks at the working resolution (``result.mask_at`` resizes them)
     """
     est = SequenceForeground(frames_by_camera, cameras, params, rng, floor)
-    return est.run(person_masks, cues, passes)
+    return est.run(person_masks, cues, passes, person_prior)

@@ -76,6 +76,13 @@ MIRROR = np.array([0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18,
                    22, 21, 24, 23, 26, 25, 28, 27, 30, 29, 32, 31])
 #: below this person-presence score a crop has lost the person (MediaPipe's default, 0.5)
 MIN_PRESENCE = 0.5
+#: frames without the person that :func:`detect_sequence` keeps to search backwards once it
+#: finds the person again (their images are held meanwhile: 100 dataset frames of 640 x 360
+#: are 70 MB)
+MAX_BACKTRACK = 100
+#: pixels: a crop smaller than this holds no person the model could find (a quarter of its
+#: input)
+MIN_CROP = INPUT / 4
 #: a crop's side over the size that the alignment points give (MediaPipe: 1.25)
 CROP_MARGIN = 1.25
 #: a view's residual above this fraction of its image's long side marks that view's point as
@@ -113,14 +120,46 @@ class Detection:
     uv : (33, 2) float64, image pixels (NaN when nothing was found)
     visibility : (33,) float64 in [0, 1], the model's belief that each point is in view
     presence : float in [0, 1], the model's belief that the crop holds a person
+    segmentation : (256, 256) float32 logits of the crop's person segmentation, or None
+    crop : (2, 3) float64, the affine map from image pixels to crop pixels, or None
     """
     uv: np.ndarray
     visibility: np.ndarray
     presence: float
+    segmentation: np.ndarray | None = None
+    crop: np.ndarray | None = None
 
     @classmethod
     def empty(cls) -> "Detection":
         return cls(np.full((33, 2), np.nan), np.zeros(33), 0.0)
+
+    def person_probability(self, shape, size=None) -> np.ndarray:
+        """The model's person segmentation mapped back to the image, in [0, 1].
+
+        The landmark network also segments its crop (what MediaPipe's ``enable_segmentation``
+        returns); pixels outside the crop, and every pixel when nothing was found, are 0.
+
+        Parameters
+        ----------
+        shape : (H, W), pixels, the image the detection ran on
+        size : (w, h), pixels, optional: the output's size (a scaling of the image)
+
+        Returns
+        -------
+        (H, W) or (h, w) float32
+        """
+        H, W = int(shape[0]), int(shape[1])
+        w, h = (W, H) if size is None else (int(size[0]), int(size[1]))
+        if self.segmentation is None or self.crop is None:
+            return np.zeros((h, w), np.float32)
+        # output pixel q is image pixel p = (q + 0.5) / s - 0.5 per axis (pixel centres)
+        s = np.array([w / W, h / H])
+        A = self.crop[:, :2] / s
+        b = self.crop[:, :2] @ (0.5 / s - 0.5) + self.crop[:, 2]
+        p = _sigmoid(self.segmentation).astype(np.float32)
+        return cv2.warpAffine(p, np.hstack([A, b[:, None]]), (w, h),
+                              flags=cv2.WARP_INVERSE_MAP | cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 def _sigmoid(x):
@@ -167,11 +206,14 @@ class PoseLandmarker:
                               borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
         blob = cv2.cvtColor(crop, cv2.COLOR_BGR2RGB).astype(np.float32).transpose(2, 0, 1)[None]
         self.net.setInput(blob / np.float32(255.0))
-        points, flag = self.net.forward(["Identity", "Identity_1"])
+        # the segmentation comes with the same forward pass (kept as logits; mapped back to the
+        # image only when asked, by Detection.person_probability)
+        points, flag, seg = self.net.forward(["Identity", "Identity_1", "Identity_2"])
         points = points.reshape(-1, 5)[:39].astype(np.float64)
         inv = cv2.invertAffineTransform(M)
         xy = points[:, :2] @ inv[:, :2].T + inv[:, 2]
-        det = Detection(xy[:33].copy(), _sigmoid(points[:33, 3]), float(np.ravel(flag)[0]))
+        det = Detection(xy[:33].copy(), _sigmoid(points[:33, 3]), float(np.ravel(flag)[0]),
+                        seg.reshape(INPUT, INPUT).astype(np.float32), M)
         return det, xy
 
     @staticmethod
@@ -186,7 +228,9 @@ class PoseLandmarker:
         """Landmarks of the person in ``image``.
 
         The first crop is the last frame's alignment (``previous``); when it has lost the
-        person (or there is none), the ``box``, then the whole image. Each found crop is re-cropped ``passes`` times on the model's own alignment.
+        person (or there is none), the ``box``, then the whole image. A start that misses the
+        person gets one more try, aligned on its own points; each found crop is re-cropped
+        ``passes`` times on the model's own alignment.
 
         Parameters
         ----------
@@ -214,7 +258,15 @@ class PoseLandmarker:
         for centre, side, angle in starts:
             det, xy = self.run(image, centre, side, angle)
             if det.presence < MIN_PRESENCE:
-                continue
+                # an upright box round a person who leans 20-40 degrees scores near the
+                # threshold (0.42 or 0.59 for boxes one pixel apart); its points still align
+                # a rotated crop, which holds the person when there is one
+                centre, side, angle = self.aligned(xy)
+                if not (np.isfinite(side) and side >= MIN_CROP and np.isfinite(centre).all()):
+                    continue
+                det, xy = self.run(image, centre, side, angle)
+                if det.presence < MIN_PRESENCE:
+                    continue
             for _ in range(passes):
                 # a re-crop aligned on a poor first guess (a box that cut off the head or
                 # feet) can lose the person: the last crop that held the person stands then
@@ -237,8 +289,18 @@ def person_box(mask) -> tuple[int, int, int, int] | None:
     return int(x), int(y), int(x + w), int(y + h)
 
 
-def detect_sequence(landmarker: PoseLandmarker, images, masks=None, progress=None):
+def segmentation_size(width: int, height: int, long_side: int | None) -> tuple[int, int]:
+    """(w, h) of an image scaled down to ``long_side`` pixels (never up; None: unchanged)."""
+    s = 1.0 if long_side is None else min(1.0, long_side / max(width, height))
+    return max(int(round(width * s)), 1), max(int(round(height * s)), 1)
+
+
+def detect_sequence(landmarker: PoseLandmarker, images, masks=None, progress=None,
+                    segment: int | None = None):
     """Landmarks of one camera's frames, each crop started from the last frame's points.
+
+    Frames where the person was not found are searched again backwards, from the crop of the
+    next frame that found them (at most :data:`MAX_BACKTRACK` frames back).
 
     Parameters
     ----------
@@ -247,17 +309,38 @@ def detect_sequence(landmarker: PoseLandmarker, images, masks=None, progress=Non
     masks : iterable of (H', W') bool, optional: the foreground, for the first crop and after
         the person was lost (any size; scaled to the image); None: the whole image
     progress : callable, optional, called once per frame
+    segment : int, optional: also return the model's person segmentation of every frame,
+        scaled down to this long side in pixels (:func:`segmentation_size`)
 
     Returns
     -------
     uv : (F, 33, 2) float64 pixels (NaN where the person was not found)
     visibility : (F, 33) float64
     presence : (F,) float64
+    segmentation : (F, h, w) uint8, the person's probability times 255 (0 where the person
+        was not found); only with ``segment``
     """
-    uv, vis, pres = [], [], []
+    uv, vis, pres, seg = [], [], [], []
+
+    def keep(i, img, det):
+        row = (det.uv, det.visibility, det.presence)
+        if segment is not None:
+            H, W = img.shape[:2]
+            prob = det.person_probability((H, W), segmentation_size(W, H, segment))
+            row += (np.round(prob * 255).astype(np.uint8),)
+        for store, value in zip((uv, vis, pres, seg), row):
+            if i == len(store):
+                store.append(value)
+            else:
+                store[i] = value
+
     previous = None
+    # the frames of the current run without the person (image kept): when the person is found
+    # again, the run is searched backwards from there (a person too small in the whole image
+    # to be found at the start of the take is found from the next frames' crops)
+    lost = []
     masks = iter(masks) if masks is not None else None
-    for img in images:
+    for i, img in enumerate(images):
         box = None
         mask = next(masks) if masks is not None else None
         if mask is not None:
@@ -267,12 +350,21 @@ def detect_sequence(landmarker: PoseLandmarker, images, masks=None, progress=Non
                 box = (box[0] * sx, box[1] * sy, box[2] * sx, box[3] * sy)
         det, previous = landmarker.detect(img, box=box, previous=previous,
                                           passes=2 if previous is None else 1)
-        uv.append(det.uv)
-        vis.append(det.visibility)
-        pres.append(det.presence)
+        keep(i, img, det)
+        if previous is None:
+            lost = (lost + [(i, img)])[-MAX_BACKTRACK:]
+        elif lost:
+            back = previous
+            for j, old in reversed(lost):
+                again, back = landmarker.detect(old, previous=back, passes=1)
+                if back is None:
+                    break
+                keep(j, old, again)
+            lost = []
         if progress is not None:
             progress()
-    return np.array(uv).reshape(-1, 33, 2), np.array(vis).reshape(-1, 33), np.array(pres)
+    out = (np.array(uv).reshape(-1, 33, 2), np.array(vis).reshape(-1, 33), np.array(pres))
+    return out + (np.array(seg),) if segment is not None else out
 
 
 def triangulate_keypoints(cameras, uv, visibility=None, *, min_visibility: float = 0.5):
@@ -331,7 +423,8 @@ def triangulate_keypoints(cameras, uv, visibility=None, *, min_visibility: float
     return pts, res, swapped
 
 
-def detect_keypoints(cameras, images, masks=None, model=None, progress=None) -> dict:
+def detect_keypoints(cameras, images, masks=None, model=None, progress=None,
+                     segment: int | None = None) -> dict:
     """Landmarks of every camera's frames and their triangulation, frame by frame.
 
     Parameters
@@ -341,12 +434,13 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None) -> 
     masks : sequence (C) of iterables of foreground masks, optional (:func:`detect_sequence`)
     model : path, optional (:func:`find_model`)
     progress : callable, optional, called once per camera frame
+    segment : int, optional, as for :func:`detect_sequence`
 
     Returns
     -------
     dict with the arrays :meth:`gltrack.data.dataset.Dataset.keypoints` describes (``uv``,
     ``visibility``, ``points``, ``residual``, ``names``) and ``presence`` (N, C), ``swapped``
-    (N, C) bool
+    (N, C) bool; with ``segment`` also ``segmentation``, a list (C) of (N, h, w) uint8
 
     Raises
     ------
@@ -358,8 +452,8 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None) -> 
         raise FileNotFoundError(f"no pose landmark model: set ${MODEL_ENV} or run "
                                 "scripts/setup.sh, which copies it from the mediapipe wheel")
     landmarker = PoseLandmarker(path)
-    per_cam = [detect_sequence(landmarker, imgs, None if masks is None else masks[c], progress)
-               for c, imgs in enumerate(images)]
+    per_cam = [detect_sequence(landmarker, imgs, None if masks is None else masks[c], progress,
+                               segment) for c, imgs in enumerate(images)]
     uv = np.stack([p[0] for p in per_cam], axis=1)  # (N, C, 33, 2)
     vis = np.stack([p[1] for p in per_cam], axis=1)
     pres = np.stack([p[2] for p in per_cam], axis=1)
@@ -368,8 +462,11 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None) -> 
     swapped = np.zeros(pres.shape, bool)
     for n in range(len(uv)):
         points[n], residual[n], swapped[n] = triangulate_keypoints(cameras, uv[n], vis[n])
-    return {"uv": uv, "visibility": vis, "points": points, "residual": residual,
-            "names": list(NAMES), "presence": pres, "swapped": swapped}
+    out = {"uv": uv, "visibility": vis, "points": points, "residual": residual,
+           "names": list(NAMES), "presence": pres, "swapped": swapped}
+    if segment is not None:
+        out["segmentation"] = [p[3] for p in per_cam]
+    return out
 
 
 def keypoint_distance(joints, targets, cap: float = DISTANCE_CAP) -> np.ndarray:
