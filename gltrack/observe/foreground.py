@@ -696,23 +696,33 @@ class SequenceForeground:
             return list(pool.map(fn, range(len(self.cameras))))
 
     # ------------------------------------------------------------------------ person masks
-    def _person_stack(self, c, person_masks):
-        """(T, h, w) bool person masks of camera c at the working size, or None."""
-        if person_masks is None or person_masks[c] is None:
+    def _working_stack(self, c, given, name, probability=False):
+        """(T, h, w) bool: camera c's given images at the working size, or None.
+
+        ``given[c]`` holds T masks (nonzero: the person) or, with ``probability``, T person
+        probabilities (uint8: times 255; floats as they are) that are true from one half on.
+        """
+        if given is None or given[c] is None:
             return None
-        pm = person_masks[c]
-        if len(pm) != self.T:
-            raise ValueError(f"person_masks[{c}] has {len(pm)} frames, the sequence {self.T}")
+        stack = given[c]
+        if len(stack) != self.T:
+            raise ValueError(f"{name}[{c}] has {len(stack)} frames, the sequence {self.T}")
         cam = self.cameras[c]
         out = np.zeros((self.T, cam.height, cam.width), bool)
-        for t, m in enumerate(pm):
+        for t, m in enumerate(stack):
             m = np.asarray(m)
             if m.ndim != 2:
-                raise ValueError(f"person_masks[{c}][{t}] must be (H, W), got {m.shape}")
-            if m.shape != (cam.height, cam.width):
-                m = cv2.resize(m.astype(np.uint8), (cam.width, cam.height),
-                               interpolation=cv2.INTER_NEAREST)
-            out[t] = m.astype(bool)
+                raise ValueError(f"{name}[{c}][{t}] must be (H, W), got {m.shape}")
+            if probability:
+                m = m.astype(np.float32) / (255.0 if m.dtype == np.uint8 else 1.0)
+                if m.shape != (cam.height, cam.width):
+                    m = cv2.resize(m, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
+                out[t] = m >= 0.5
+            else:
+                if m.shape != (cam.height, cam.width):
+                    m = cv2.resize(m.astype(np.uint8), (cam.width, cam.height),
+                                   interpolation=cv2.INTER_NEAREST)
+                out[t] = m.astype(bool)
         return out
 
     # ------------------------------------------------------------------------ cue 1: background
@@ -1245,10 +1255,12 @@ class SequenceForeground:
         """All passes; see :func:`estimate_foreground` for the parameters."""
         p = self.params
         passes = int(p.passes if passes is None else passes)
-        given = [self._person_stack(c, person_masks) for c in range(len(self.cameras))]
+        given = [self._working_stack(c, person_masks, "person_masks")
+                 for c in range(len(self.cameras))]
         prior = None
         if "prior" in cues and person_prior is not None:
-            prior = [self._prior_stack(c, person_prior) for c in range(len(self.cameras))]
+            prior = [self._working_stack(c, person_prior, "person_prior", probability=True)
+                     for c in range(len(self.cameras))]
             # where the prior says "person", the subject is left out of the background and is
             # never a ghost, as for given person masks
             given = [g if q is None else (q if g is None else g | q)
@@ -1314,26 +1326,6 @@ class SequenceForeground:
                 used[c][t] = ok
                 out[c][t] = (masks[c][t] & dilate_mask(ok, r)) | ok
         return out, used
-
-    def _prior_stack(self, c, person_prior):
-        """(T, h, w) bool: camera c's person prior (probability >= 0.5) at the working size."""
-        if person_prior[c] is None:
-            return None
-        pp = person_prior[c]
-        if len(pp) != self.T:
-            raise ValueError(f"person_prior[{c}] has {len(pp)} frames, the sequence {self.T}")
-        cam = self.cameras[c]
-        out = np.zeros((self.T, cam.height, cam.width), bool)
-        for t, q in enumerate(pp):
-            q = np.asarray(q)
-            if q.ndim != 2:
-                raise ValueError(f"person_prior[{c}][{t}] must be (H, W), got {q.shape}")
-            # uint8 is a probability times 255, floats a probability
-            q = q.astype(np.float32) / 255.0 if q.dtype == np.uint8 else q.astype(np.float32)
-            if q.shape != (cam.height, cam.width):
-                q = cv2.resize(q, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
-            out[t] = q >= 0.5
-        return out
 
     def _dilate_stack(self, stack):
         return np.stack([dilate_mask(m, self.params.exclude_margin) for m in stack])
