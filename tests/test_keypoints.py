@@ -9,7 +9,8 @@ import pytest
 
 from gltrack.camera import look_at_camera, triangulate
 from gltrack.observe.keypoints import (BODY_JOINTS, DISTANCE_CAP, INPUT, LANDMARKS, MIRROR,
-                                       NAMES, Detection, PoseLandmarker, detect_sequence,
+                                       NAMES, Detection, PoseLandmarker, confirmed_views,
+                                       detect_sequence,
                                        find_model, keypoint_distance, segmentation_size,
                                        triangulate_keypoints)
 
@@ -65,6 +66,18 @@ def test_triangulation_undoes_exchanged_sides_and_drops_a_wrong_view():
     assert not swapped[3] and np.isnan(r[3]).all()
     with pytest.raises(ValueError, match=r"uv must be \(4, 33, 2\)"):
         triangulate_keypoints(cams, uv[:, :12])
+
+
+def test_confirmed_views_need_enough_points_that_fit():
+    cams = [look_at_camera(f"c{i}", (3.0 * np.sin(a), 1.5, 3.0 * np.cos(a)), (0, 1, 0), 640,
+                           360, 50.0) for i, a in enumerate((0.0, 1.6, 3.1))]
+    res = np.full((2, 3, 33), 4.0)  # 4 px of 640: fits (the limit is 10 px)
+    res[0, 1] = 20.0  # a view whose points do not fit the others
+    res[1, 2, 7:] = np.nan  # 7 points used: too few to say
+    res[1, 0, :20] = 30.0  # 20 of 33 off: the median is off
+    ok = confirmed_views(cams, res)
+    assert ok.tolist() == [[True, False, True], [False, True, False]]
+    assert confirmed_views(cams, np.full((1, 3, 33), np.nan)).tolist() == [[False] * 3]
 
 
 def test_keypoint_distance_is_the_mean_capped_distance():
@@ -268,8 +281,11 @@ def test_ingest_writes_the_keypoints_of_the_shared_take(shared, tmp_path, monkey
     ds = Dataset.open(tmp_path / "p2s")
     meta = json.loads((tmp_path / "p2s" / "meta.json").read_text())
     assert meta["keypoints"] == k
-    # the landmark model's segmentation shaped every camera's masks (the "prior" cue)
-    assert "prior" in meta["masks"]["cues"] and meta["masks"]["prior_fraction"] == [1.0] * 4
+    # at a quarter of the size (480 px) a view's points are confirmed in most frames (at the
+    # default 640 px, in all 100 frames of every camera); the confirmed views' segmentation
+    # shaped the masks (the "prior" cue)
+    assert min(k["confirmed"]) > 0 and np.mean(k["confirmed"]) >= 0.75, k
+    assert "prior" in meta["masks"]["cues"] and max(meta["masks"]["prior_fraction"]) == 1.0
     kp = ds.keypoints()
     body = [LANDMARKS[j] for j in BODY_JOINTS]
     assert np.isfinite(kp["points"][:, body]).all()

@@ -115,8 +115,12 @@ def run(args):
     m = r["masks"]
     if m is not None:
         fr = ", ".join(f"{n} {f:.3f}" for n, f in zip(r["cameras"], m["foreground_fraction"]))
+        prior = m.get("prior_fraction")
+        shaped = ("" if prior is None else
+                  f"; the landmark model's person segmentation shaped {min(prior):.0%}-"
+                  f"{max(prior):.0%} of the frames")
         print(f"foreground masks ({m['method']}, {m['passes']} passes, {m['seconds']:.0f} s): "
-              f"fraction of the image per camera {fr}")
+              f"fraction of the image per camera {fr}{shaped}")
     else:
         print("no foreground masks (--masks none): give the dataset camN_mask/ or "
               "camN_background.png before tracking it")

@@ -707,7 +707,10 @@ def write_keypoints(writer, frames, model, with_masks=True, segment=False):
         What ``meta.json`` records as ``"keypoints"``: ``model`` (file name), ``seconds``,
         ``found`` (per camera: the fraction of frames with a person), ``residual_px``
         (median reprojection residual per camera), ``swapped`` (per camera: frames whose
-        left and right were exchanged).
+        left and right were exchanged), ``confirmed`` (per camera: the fraction of frames
+        whose landmarks the other views confirm,
+        :func:`gltrack.observe.keypoints.confirmed_views`; only those frames' segmentation
+        is returned).
     segmentation : list (C) of (frames, h, w) uint8, or None without ``segment``
     """
     import time
@@ -741,7 +744,8 @@ def write_keypoints(writer, frames, model, with_masks=True, segment=False):
     meta = {"model": Path(model).name, "seconds": round(seconds, 1),
             "found": [round(float(f), 3) for f in found],
             "residual_px": [None if r is None else round(r, 1) for r in res],
-            "swapped": [int(v) for v in kp["swapped"].sum(axis=0)]}
+            "swapped": [int(v) for v in kp["swapped"].sum(axis=0)],
+            "confirmed": [round(float(f), 3) for f in kp["confirmed"].mean(axis=0)]}
     log.info("keypoints: %s in %.0f s; person found in %s of the frames; median residual %s px",
              meta["model"], seconds, ", ".join(f"{f:.0%}" for f in found),
              ", ".join("-" if r is None else f"{r:.1f}" for r in res))

@@ -39,6 +39,7 @@ import itertools
 import logging
 import os
 import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +77,10 @@ MIRROR = np.array([0, 4, 5, 6, 1, 2, 3, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18,
                    22, 21, 24, 23, 26, 25, 28, 27, 30, 29, 32, 31])
 #: below this person-presence score a crop has lost the person (MediaPipe's default, 0.5)
 MIN_PRESENCE = 0.5
+#: a view's landmarks confirm its person (:func:`confirmed_views`) when at least this many of
+#: them went into the triangulation: a median of fewer says little (a quarter of the 33; the
+#: seated caliscope take, legs hidden, has 7-25 a view, 22 median)
+MIN_CONFIRMED = 8
 #: frames without the person that :func:`detect_sequence` keeps to search backwards once it
 #: finds the person again (their images are held meanwhile: 100 dataset frames of 640 x 360
 #: are 70 MB)
@@ -423,6 +428,34 @@ def triangulate_keypoints(cameras, uv, visibility=None, *, min_visibility: float
     return pts, res, swapped
 
 
+def confirmed_views(cameras, residual, min_points: int = MIN_CONFIRMED) -> np.ndarray:
+    """Which views' landmarks are a person the other views see too.
+
+    The landmark model also reports a person where there is none now and then (a coloured
+    ball on a plain background, in ``gltrack ingest``'s tests): its points then do not
+    triangulate with the other views'. A view is confirmed in a frame when at least
+    ``min_points`` of its landmarks were used and their median reprojection residual is
+    within :data:`MAX_RESIDUAL` of its image's long side.
+
+    Parameters
+    ----------
+    cameras : sequence (C) of Camera
+    residual : (N, C, 33) pixels, NaN where left out (:func:`triangulate_keypoints`)
+    min_points : int
+
+    Returns
+    -------
+    (N, C) bool
+    """
+    residual = np.asarray(residual, dtype=np.float64)
+    long_side = np.array([max(c.width, c.height) for c in cameras], float)
+    used = np.isfinite(residual).sum(axis=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: not confirmed
+        median = np.nanmedian(residual, axis=2)
+    return (used >= min_points) & (median <= MAX_RESIDUAL * long_side)
+
+
 def detect_keypoints(cameras, images, masks=None, model=None, progress=None,
                      segment: int | None = None) -> dict:
     """Landmarks of every camera's frames and their triangulation, frame by frame.
@@ -440,7 +473,8 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None,
     -------
     dict with the arrays :meth:`gltrack.data.dataset.Dataset.keypoints` describes (``uv``,
     ``visibility``, ``points``, ``residual``, ``names``) and ``presence`` (N, C), ``swapped``
-    (N, C) bool; with ``segment`` also ``segmentation``, a list (C) of (N, h, w) uint8
+    (N, C) bool, ``confirmed`` (N, C) bool (:func:`confirmed_views`); with ``segment`` also
+    ``segmentation``, a list (C) of (N, h, w) uint8, zero in the views not confirmed
 
     Raises
     ------
@@ -462,10 +496,14 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None,
     swapped = np.zeros(pres.shape, bool)
     for n in range(len(uv)):
         points[n], residual[n], swapped[n] = triangulate_keypoints(cameras, uv[n], vis[n])
+    confirmed = confirmed_views(cameras, residual)
     out = {"uv": uv, "visibility": vis, "points": points, "residual": residual,
-           "names": list(NAMES), "presence": pres, "swapped": swapped}
+           "names": list(NAMES), "presence": pres, "swapped": swapped, "confirmed": confirmed}
     if segment is not None:
-        out["segmentation"] = [p[3] for p in per_cam]
+        seg = [p[3] for p in per_cam]
+        for c in range(len(seg)):
+            seg[c][~confirmed[:, c]] = 0
+        out["segmentation"] = seg
     return out
 
 
