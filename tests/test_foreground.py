@@ -294,7 +294,8 @@ def test_prior_bounds_the_spill_fills_holes_and_loses_a_one_view_blob(moving):
     """The "prior" cue on masks the test spoils: every view's mask spills 6 px past the body
     and has a hole in the torso; camera 0's prior also takes a blob no other view sees (a
     second person). The prior's consistent pixels plus the masks' edge next to them come back;
-    a frame whose prior is missing in two views keeps its masks."""
+    a frame whose prior is missing in two views keeps its masks, and so does a view whose prior
+    is only a blob in a corner, off the body."""
     cams, frames, truth, dis = moving
     est = SequenceForeground(frames, cams, rng=np.random.default_rng(1))
     spoilt, prior = [], []
@@ -309,7 +310,10 @@ def test_prior_bounds_the_spill_fills_holes_and_loses_a_one_view_blob(moving):
         prior.append(q)
     prior[1][7] = False
     prior[2][7] = False
-    out, used = est.with_prior(spoilt, prior)
+    prior[3][9] = False
+    prior[3][9][:15, :15] = True
+    used = est.consistent_prior(prior)
+    out = est.with_prior(spoilt, used)
     r = ForegroundParams().prior_margin
     for c in range(4):
         for t in (0, 5, 11):
@@ -320,9 +324,11 @@ def test_prior_bounds_the_spill_fills_holes_and_loses_a_one_view_blob(moving):
             assert _iou(out[c][t], truth[c][t]) > _iou(spoilt[c][t], truth[c][t]) + 0.1
         assert np.array_equal(out[c][7], spoilt[c][7]) and not used[c][7].any()
     assert out[0][dis].mean() < 0.02 and used[0][dis].mean() < 0.02
+    assert np.array_equal(out[3][9], spoilt[3][9]) and not used[3][9].any()
+    assert used[0][9].any() and not np.array_equal(out[0][9], spoilt[0][9])
     # a prior that changes changes the masks: the prior's pixels are the masks' core
     shifted = [np.roll(q, 4, axis=2) for q in prior]
-    moved, _ = est.with_prior(spoilt, shifted)
+    moved = est.with_prior(spoilt, est.consistent_prior(shifted))
     assert not np.array_equal(moved[3][0], out[3][0])
 
 

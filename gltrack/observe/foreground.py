@@ -63,8 +63,9 @@ on their own (``cues=``):
 7. **prior** (a person segmentation, given as ``person_prior=``; ``gltrack ingest`` passes the
    segmentation that the pose landmark model computes with its landmarks,
    :mod:`gltrack.observe.keypoints`): its pixels are left out of the background like person
-   masks, and the final masks are the prior's multi-view consistent pixels plus the other
-   cues' pixels next to them (:meth:`SequenceForeground.with_prior`). Where the prior is
+   masks, and the final masks are the prior's multi-view consistent pixels
+   (:meth:`SequenceForeground.consistent_prior`) plus the other cues' pixels next to them
+   (:meth:`SequenceForeground.with_prior`). Where the prior is
    missing (the person not found) the other cues stand alone. Measured on the Pose2Sim take
    (docs/measurements.md): the GrabCut spill onto the skin-coloured cupboards goes and the
    still torso's holes fill.
@@ -1265,6 +1266,8 @@ class SequenceForeground:
             # never a ghost, as for given person masks
             given = [g if q is None else (q if g is None else g | q)
                      for g, q in zip(given, prior)]
+            # the prior does not change between passes, nor its visual hull
+            prior = self.consistent_prior(prior)
         given = [None if g is None else self._dilate_stack(g) for g in given]
         exclude = given if any(g is not None for g in given) else None
         for k in range(passes):
@@ -1273,7 +1276,8 @@ class SequenceForeground:
             use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
             masks, stages, bgs, knowns = self.run_pass(exclude, use, given)
             if prior is not None:
-                masks, stages["prior"] = self.with_prior(masks, prior)
+                masks = self.with_prior(masks, prior)
+                stages["prior"] = prior
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
             # the next background leaves out this pass's masks (dilated). Their convex hull
@@ -1284,48 +1288,60 @@ class SequenceForeground:
         return ForegroundResult(masks, list(self.cameras), bgs, knowns, stages,
                                 list(self.full_size))
 
-    def with_prior(self, masks, prior):
-        """Combine the cues' masks with a person prior (cue ``"prior"``).
+    def consistent_prior(self, prior):
+        """The person prior's multi-view consistent pixels (cue ``"prior"``).
 
         Per frame, the prior's own visual hull is carved (:meth:`hull`); each camera keeps the
-        prior's pixels near that hull's reprojection (multi-view consistent: a view whose prior
-        took another person, or a poster, loses them), and the cues' pixels within
-        ``prior_margin`` of those. The prior fills what the cues miss (clothes the colour of the
-        background, a part that never moved) and bounds what they spill (GrabCut taking in a
-        cupboard of the skin's colour); the cues keep the edge where the prior is a few pixels
-        short. A frame whose prior has no hull (the person not found in enough views) keeps
-        the cues' masks, and so does a camera whose prior is empty.
+        prior's pixels near that hull's reprojection: a view whose prior took another person,
+        or a poster, loses them. A frame whose prior has no hull (the person not found in
+        enough views) keeps none.
 
         Parameters
         ----------
-        masks : list (C) of (T, h, w) bool, the cues' masks
         prior : list (C) of (T, h, w) bool or None (per camera)
 
         Returns
         -------
-        masks : list (C) of (T, h, w) bool; used : list (C) of (T, h, w) bool, the prior's
-        multi-view consistent pixels
+        list (C) of (T, h, w) bool
         """
         C = len(self.cameras)
-        r = self.params.prior_margin
-        out = [m.copy() for m in masks]
-        used = [np.zeros_like(m) for m in masks]
-        empty = np.zeros((0, 0), bool)
+        used = [np.zeros((self.T, cam.height, cam.width), bool) for cam in self.cameras]
         for t in range(self.T):
-            frame = [empty if prior[c] is None else prior[c][t] for c in range(C)]
+            frame = [used[c][t] if prior[c] is None else prior[c][t] for c in range(C)]
             if sum(bool(m.any()) for m in frame) < C - self.tolerance:
                 continue
-            sil, _, (lo, _) = self.hull([m if m.size else np.zeros_like(masks[c][t])
-                                         for c, m in enumerate(frame)])
+            sil, _, (lo, _) = self.hull(frame)
             if len(lo) == 0:
                 continue
             for c in range(C):
-                if not frame[c].any():
-                    continue
-                ok = frame[c] & dilate_mask(sil[c], self.params.hull_margin)
-                used[c][t] = ok
-                out[c][t] = (masks[c][t] & dilate_mask(ok, r)) | ok
-        return out, used
+                used[c][t] = frame[c] & dilate_mask(sil[c], self.params.hull_margin)
+        return used
+
+    def with_prior(self, masks, used):
+        """Combine the cues' masks with the prior's consistent pixels (cue ``"prior"``).
+
+        Each camera keeps the prior's consistent pixels (:meth:`consistent_prior`) and the
+        cues' pixels within ``prior_margin`` of them. The prior fills what the cues miss
+        (clothes the colour of the background, a part that never moved) and bounds what they
+        spill (GrabCut taking in a cupboard of the skin's colour); the cues keep the edge where
+        the prior is a few pixels short. A camera and frame without consistent prior pixels
+        keeps the cues' mask.
+
+        Parameters
+        ----------
+        masks : list (C) of (T, h, w) bool, the cues' masks
+        used : list (C) of (T, h, w) bool, the prior's consistent pixels
+
+        Returns
+        -------
+        list (C) of (T, h, w) bool
+        """
+        r = self.params.prior_margin
+        out = [m.copy() for m in masks]
+        for c, (m, u) in enumerate(zip(masks, used)):
+            for t in np.flatnonzero(u.any(axis=(1, 2))):
+                out[c][t] = (m[t] & dilate_mask(u[t], r)) | u[t]
+        return out
 
     def _dilate_stack(self, stack):
         return np.stack([dilate_mask(m, self.params.exclude_margin) for m in stack])
