@@ -17,12 +17,18 @@ its centre; outputs: 39 points (33 landmarks and 6 auxiliary) as x, y (crop pixe
 visibility and presence logits, and a person-presence score in [0, 1].
 
 Crops follow MediaPipe's own tracking: the first crop of a camera is the foreground mask's
-largest blob (a square 1.25 times its longer side), re-cropped twice on the model's own
-alignment points (33: the hips' centre, 34: the top of the body's circle; side 2.5 times
-their distance, rotated so that 33 -> 34 points up); every later frame starts from the last
-frame's alignment and is re-cropped once. A crop whose presence score falls below
+largest blob when masks are given (a square 1.25 times its longer side; ``gltrack ingest``
+finds the keypoints before the masks and starts from the whole image), re-cropped twice on the
+model's own alignment points (33: the hips' centre, 34: the top of the body's circle; side 2.5
+times their distance, rotated so that 33 -> 34 points up); every later frame starts from the
+last frame's alignment and is re-cropped once. A crop whose presence score falls below
 :data:`MIN_PRESENCE` has lost the person: the frame starts again from the mask, then from
-the whole image.
+the whole image, each start with one more crop aligned on its own points; frames still
+missed are searched again backwards from the next frame that found the person.
+
+The same network segments the person in its crop (:meth:`Detection.person_probability`);
+``gltrack ingest`` hands the segmentation of the views whose landmarks triangulate with the
+others (:func:`confirmed_views`) to the foreground masks as their ``"prior"`` cue.
 
 Triangulation
 -------------
