@@ -599,8 +599,7 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         # cue (its first crops then start from the whole image, not from a mask's blob)
         kp_meta, prior = None, None
         if model is not None:
-            kp_meta, prior = write_keypoints(writer, len(fmap), model, with_masks=False,
-                                             segment=masks == "auto")
+            kp_meta, prior = write_keypoints(writer, len(fmap), model, segment=masks == "auto")
             writer.extra_meta["keypoints"] = kp_meta
         mask_meta = None
         if masks == "auto":
@@ -652,19 +651,11 @@ def write_masks(writer, frames, params=None, floor=None, person_prior=None):
     cues = [c for c in CUES if (c != "support" or floor is not None)
             and (c != "prior" or person_prior is not None)]
 
-    def feed(cam):
-        for j in range(frames):
-            path = writer.tmp / cam.name / f"{j:06d}.png"
-            img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if img is None:
-                raise OSError(f"{path}: cannot read back the frame just written")
-            yield img
-
     log.info("foreground: estimating masks of %d frames x %d cameras (work size %d px, %d "
              "passes, cues %s)", frames, len(cams), params.work_size, params.passes,
              ", ".join(cues))
     t0 = time.perf_counter()
-    res = estimate_foreground([feed(c) for c in cams], cams, params=params, cues=cues,
+    res = estimate_foreground([_read_back(writer, c, frames) for c in cams], cams, params=params, cues=cues,
                               floor=level_floor(floor), person_prior=person_prior)
     for k, cam in enumerate(cams):
         for j in range(frames):
@@ -688,7 +679,7 @@ def write_masks(writer, frames, params=None, floor=None, person_prior=None):
     return meta
 
 
-def write_keypoints(writer, frames, model, with_masks=True, segment=False):
+def write_keypoints(writer, frames, model, segment=False):
     """Find the body landmarks of the frames a :class:`DatasetWriter` holds, triangulate them
     and write ``keypoints.npz`` (:func:`gltrack.observe.keypoints.detect_keypoints`).
 
@@ -697,7 +688,6 @@ def write_keypoints(writer, frames, model, with_masks=True, segment=False):
     writer : DatasetWriter, open, with colour frames ``0 .. frames-1`` for every camera
     frames : int
     model : path, the landmark model
-    with_masks : bool, the writer holds masks (they place each camera's first crop)
     segment : bool, also return the model's person segmentation (at the foreground's working
         size, :class:`gltrack.observe.foreground.ForegroundParams`)
 
@@ -720,19 +710,11 @@ def write_keypoints(writer, frames, model, with_masks=True, segment=False):
 
     cams = writer.cameras
 
-    def read(cam, role, flags):
-        folder = writer.tmp / (cam.name if role == "colour" else f"{cam.name}_{role}")
-        for j in range(frames):
-            img = cv2.imread(str(folder / f"{j:06d}.png"), flags)
-            if img is None:
-                raise OSError(f"{folder / f'{j:06d}.png'}: cannot read back the frame just written")
-            yield img if role == "colour" else img > 127
-
     t0 = time.perf_counter()
     log.info("keypoints: finding body landmarks in %d frames x %d cameras", frames, len(cams))
-    kp = detect_keypoints(cams, [read(c, "colour", cv2.IMREAD_COLOR) for c in cams],
-                          [read(c, "mask", cv2.IMREAD_GRAYSCALE) for c in cams]
-                          if with_masks else None, model=model,
+    # no masks yet (they come after, with this segmentation as their prior): the first crops
+    # are the whole images
+    kp = detect_keypoints(cams, [_read_back(writer, c, frames) for c in cams], model=model,
                           segment=ForegroundParams().work_size if segment else None)
     writer.write_keypoints(kp["uv"], kp["visibility"], kp["points"], kp["residual"],
                            kp["names"])
@@ -750,6 +732,16 @@ def write_keypoints(writer, frames, model, with_masks=True, segment=False):
              meta["model"], seconds, ", ".join(f"{f:.0%}" for f in found),
              ", ".join("-" if r is None else f"{r:.1f}" for r in res))
     return meta, kp.get("segmentation")
+
+
+def _read_back(writer, cam, frames):
+    """Yield camera ``cam``'s colour frames ``0 .. frames-1`` that ``writer`` holds (BGR)."""
+    for j in range(frames):
+        path = writer.tmp / cam.name / f"{j:06d}.png"
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if img is None:
+            raise OSError(f"{path}: cannot read back the frame just written")
+        yield img
 
 
 def _resize(img, size):
