@@ -499,19 +499,19 @@ def triangulate(cameras, uv, *, distort: bool = True):
         if seen[c].any():
             und[c, seen[c]] = cam.undistort_points(uv[c, seen[c]]) if distort else uv[c, seen[c]]
     points = np.full((N, 3), np.nan)
-    for n in range(N):
-        rows = []
-        for c, cam in enumerate(cameras):
-            if not seen[c, n]:
-                continue
-            # normalised image coordinates of the ray; P = [R | t]
-            x = (und[c, n, 0] - cam.cx) / cam.fx
-            y = (und[c, n, 1] - cam.cy) / cam.fy
-            P = np.hstack([cam.R, cam.t[:, None]])
-            rows += [x * P[2] - P[0], y * P[2] - P[1]]
-        if len(rows) >= 4:
-            X = np.linalg.svd(np.asarray(rows))[2][-1]
-            points[n] = X[:3] / X[3]
+    # every point's DLT system at once: two rows per camera, (N, 2C, 4); an unseen view's
+    # rows are zero, which leaves the system's null space (the point) as without them
+    P = np.stack([np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])  # (C, 3, 4)
+    f = np.array([[cam.fx, cam.fy] for cam in cameras])[:, None, :]
+    ctr = np.array([[cam.cx, cam.cy] for cam in cameras])[:, None, :]
+    xy = (und - ctr) / f  # normalised image coordinates of the rays, (C, N, 2)
+    rows = xy[..., None] * P[:, None, None, 2] - P[:, None, :2]  # (C, N, 2, 4)
+    rows = np.where(seen[:, :, None, None], rows, 0.0)
+    A = rows.transpose(1, 0, 2, 3).reshape(N, 2 * C, 4)
+    enough = seen.sum(axis=0) >= 2
+    if enough.any():
+        X = np.linalg.svd(A[enough])[2][:, -1]
+        points[enough] = X[:, :3] / X[:, 3:]
     residual = np.full((C, N), np.nan)
     ok = np.isfinite(points).all(axis=1)
     for c, cam in enumerate(cameras):

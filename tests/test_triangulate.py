@@ -45,6 +45,26 @@ def test_triangulation_recovers_points_through_the_lens():
         triangulate(cams, uv[:3])
 
 
+def test_points_are_triangulated_independently_of_each_other():
+    """All points are solved in one batch: each noisy point, seen by its own subset of the
+    views, comes out as it does alone with only the cameras that see it."""
+    cams = rig()
+    rng = np.random.default_rng(1)
+    X = rng.uniform([-0.5, 0.0, -0.5], [0.5, 1.9, 0.5], size=(12, 3))
+    uv = np.stack([c.project(X) for c in cams]) + rng.normal(scale=2.0, size=(4, 12, 2))
+    uv[rng.random((4, 12)) < 0.3] = np.nan
+    P, r = triangulate(cams, uv)
+    for n in range(len(X)):
+        views = np.flatnonzero(np.isfinite(uv[:, n, 0]))
+        if len(views) < 2:
+            assert np.isnan(P[n]).all()
+            continue
+        p1, r1 = triangulate([cams[c] for c in views], uv[views, n:n + 1])
+        np.testing.assert_allclose(P[n], p1[0], atol=1e-9)
+        np.testing.assert_allclose(r[views, n], r1[:, 0], atol=1e-6)
+    assert (np.isfinite(P).all(axis=1)).sum() >= 6  # most points seen twice or more
+
+
 def _script():
     spec = importlib.util.spec_from_file_location("labelled_reference",
                                                   REPO / "scripts" / "labelled_reference.py")
