@@ -309,6 +309,26 @@ def test_an_estimate_outside_usual_statures_falls_back_only_where_the_stature_is
     assert min(rec["estimate"]["framing"]["heights_m"]) > body_estimate.SEATED_HEIGHT
 
 
+def test_a_seated_subjects_stature_is_searched_from_an_adults(tmp_path, ctx):
+    """With the legs hidden (``upper``) the observation is only the part above the desk, a lower
+    bound of the stature: the search starts from the default adult's, not from the clipped
+    observation (1.0 m, from which the stature steps reached 1.5 m at most, so a 1.85 m
+    subject got a head 9 cm short). A 1.85 m subject seen without legs (about 0.9 m of depth
+    foreground) comes out within 5 cm of its stature, its neck-to-head-top within 2 cm."""
+    person = _body(1.85, 1.0)
+    legless = BodyModel.build(person.skeleton, "upper", girth_scale=1.0).mesh
+    ds = _depth(tmp_path / "seated", person, surface=legless)
+    est = estimate_body(ds, ctx, preset="upper", frames=[0, 2], rounds=1,
+                        rng=np.random.default_rng(0))
+
+    def head(sk):  # neck joint to head top, metres
+        i = sk.names.index("head")
+        return sk.offsets[i, 1] + sk.ends[i, 1]
+
+    assert est.skeleton.height() == pytest.approx(1.85, abs=0.05)
+    assert head(est.skeleton) == pytest.approx(head(person.skeleton), abs=0.02)
+
+
 def test_framing_picks_the_upper_preset_for_a_subject_seen_from_the_waist_up(tmp_path, ctx,
                                                                              caplog):
     """Without ``--dof`` a subject whose observation is shorter than SEATED_HEIGHT (here the

@@ -912,7 +912,15 @@ def estimate_body(dataset, ctx, *, preset: str = "full", frames=None, rng=None,
         # hidden feet are not held above the floor: the hull's bottom is then the desk's edge
         feet_hidden = any("foot" in p for p in HIDDEN_PARTS.get(search_preset, ()))
         search = _Search(views, template, tbody.dofs, dataset.fps, stands=not feet_hidden)
-        search.shape = Proportions(height=float(np.clip(h_guess, 1.0, 2.2)))
+        # the search starts from the observed height; with the feet hidden that is only a
+        # lower bound of the stature (the part above the desk), so it starts from the default
+        # adult's unless the observation is taller. Why: the stature search below moves at
+        # most ~0.45 m; from the clipped 1.0 m it stopped at 1.44 m on the seated caliscope
+        # take, with the head 8 cm short on an adult's trunk and arms.
+        start_height = float(np.clip(h_guess, 1.0, 2.2))
+        if feet_hidden:
+            start_height = max(start_height, Proportions().height)
+        search.shape = Proportions(height=start_height)
         x = views.initial_pose(chosen[0], BodyModel.build(search.shape.skeleton(), search_preset))
         views.add(chosen[0], x)
         search.poses.append(search.settle(0, x))
