@@ -338,7 +338,7 @@ def test_framing_picks_the_upper_preset_for_a_subject_seen_from_the_waist_up(tmp
     from gltrack.track.bodies import resolve_body
     from gltrack.track.body_estimate import SEATED_HEIGHT, framing_preset
 
-    assert framing_preset([0.26, 0.26, 0.28]) == "upper"  # the caliscope take's masks
+    assert framing_preset([0.84, 0.87, 0.87]) == "upper"  # the seated caliscope take's hull
     assert framing_preset([1.46, 1.48, 1.58]) == "full"  # a simulated walk, depth
     assert framing_preset([1.22, 1.24, 1.27]) == "full"  # the shortest whole body measured
     assert framing_preset([0.5, 1.6, 1.7]) == "full"  # one frame's masks lost the legs

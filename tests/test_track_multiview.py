@@ -667,6 +667,45 @@ def test_arm_sweep_finds_a_raised_arm_the_particles_left_hanging(tmp_path, ctx):
                  mv.arm_grid(d, 10), far=0.4, near=0.15)
 
 
+def test_a_recording_without_a_floor_is_searched_round_the_cameras_gaze(dataset, tmp_path):
+    """A calibration's origin need not lie on the floor (caliscope's lies where the board lay:
+    on the seated take, at head height), so a recording whose floor is unknown is searched in a
+    3 m cube round the cameras' gaze, not from the origin up. The test take with its world
+    origin moved 1 m up: the visual hull in that cube holds the whole body, the one in the
+    floor-based volume only what is above the new origin. A synthetic dataset (no ``world``
+    record) keeps its floor at 0, a recorded floor is kept as it is."""
+    import shutil
+    from dataclasses import replace
+
+    from gltrack.data.dataset import Dataset
+    from gltrack.observe.blob_evidence import default_volume
+    from gltrack.observe.voxels import carve
+
+    path, body, P = dataset
+    ds = Dataset.open(path)
+    assert ds.assumed_floor() == 0.0
+    up = np.array([0.0, 1.0, 0.0])  # X_world' = X_world - up, so t' = t + R @ up
+    cams = [replace(c, t=c.t + c.R @ up) for c in ds.cameras]
+    masks = [ds.mask(0, k) for k in range(len(cams))]
+    tall = body.joints(P[0][None])[0, :, 1].max() - body.joints(P[0][None])[0, :, 1].min()
+
+    def hull_height(volume):
+        pts, vol = carve(cams, masks, volume, base=16, max_depth=2, distort=False).points(0.06)
+        return pts[:, 1].max() - pts[:, 1].min() + np.cbrt(vol.min())
+
+    cube = default_volume(cams, None)
+    assert cube[4] - cube[1] == pytest.approx(3.0) and cube[1] < -1.0 < 0.0 < cube[4]
+    assert hull_height(cube) > tall
+    assert hull_height(default_volume(cams, 0.0)) < 0.6 * tall
+    for floor in (None, 0.3):
+        moved = tmp_path / f"floor_{floor}"
+        shutil.copytree(path, moved)
+        meta = json.loads((moved / "meta.json").read_text())
+        meta["world"] = {"up": "y", "R_user_from_internal": np.eye(3).tolist(), "floor": floor}
+        (moved / "meta.json").write_text(json.dumps(meta))
+        assert Dataset.open(moved).assumed_floor() == floor
+
+
 def test_ground_contact_weighs_down_a_floating_pose(dataset, ctx, tmp_path):
     """``ground_contact``: a pose lifted 0.3 m off the ground the cameras see the person on is
     weighted as if its silhouette error were ``area * (excess / GROUND_SCALE)`` pixels larger

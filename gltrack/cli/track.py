@@ -53,7 +53,7 @@ def add_arguments(p):
     add_dof_option(p, help="DOF preset overriding the --body record's; 'upper': the legs are "
                            "fixed and left out of the fit, for a subject seen from the waist up "
                            "(seated behind a desk). Without it, --body estimate picks 'upper' "
-                           "when the person is under 0.9 m tall in the first frames (it says "
+                           "when the person is under 1.0 m tall in the first frames (it says "
                            "so), else 'full'")
     p.add_argument("--lost-frames", type=int, default=3, metavar="N",
                    help="re-start a tracker whose fit stays worse than its lost threshold for N "

@@ -534,6 +534,19 @@ class Dataset:
         f = (self.meta.get("world") or {}).get("floor")
         return None if f is None else float(f)
 
+    def assumed_floor(self):
+        """Height of the floor along internal +Y (metres) that the data implies, or None.
+
+        The recorded floor (:meth:`floor_height`); for a dataset without a ``world`` record
+        (every synthetic one) 0, where the simulator stands its subjects; None for a recording
+        whose floor is unknown (``gltrack ingest`` with no floor found: the calibration's
+        origin may be anywhere, e.g. on a desk or at head height).
+        """
+        f = self.floor_height()
+        if f is not None or self.meta.get("world") is not None:
+            return f
+        return 0.0
+
     def up_axis(self):
         """The user frame's up axis (``"y"``, ``"z"``, ``"-y"``, ...); ``"y"`` without a record."""
         return (self.meta.get("world") or {}).get("up", "y")

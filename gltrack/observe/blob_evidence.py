@@ -43,9 +43,19 @@ FIT_FROM = ("predictions", "groundtruth")
 STAGES = ("voxels", "blob_fit", "evaluation")
 
 
-def default_volume(cameras) -> np.ndarray:
-    """(6,) tracking volume: 3 m x 3 m around the least-squares meeting point of the cameras'
-    optical axes, from 0.1 m below the floor to 2.5 m, metres."""
+def default_volume(cameras, floor: float | None = 0.0) -> np.ndarray:
+    """(6,) tracking volume, metres: 3 m x 3 m around the least-squares meeting point of the
+    cameras' optical axes, from 0.1 m below the floor to 2.5 m above it.
+
+    Parameters
+    ----------
+    cameras : list of gltrack.camera.Camera
+    floor : float or None, the floor's height along +Y (:meth:`Dataset.assumed_floor
+        <gltrack.data.dataset.Dataset.assumed_floor>`); None (unknown): a 3 m cube centred on
+        the meeting point. Why: a calibration's origin need not lie on the floor (caliscope
+        puts it where the board lay: on the seated take, at the subject's head height), and a
+        volume that starts there held only the top of the head.
+    """
     A, b = np.zeros((3, 3)), np.zeros(3)
     for c in cameras:
         d = c.R[2] / np.linalg.norm(c.R[2])
@@ -53,7 +63,8 @@ def default_volume(cameras) -> np.ndarray:
         A += M
         b += M @ c.center
     p = np.linalg.lstsq(A, b, rcond=None)[0]
-    return np.array([p[0] - 1.5, -0.1, p[2] - 1.5, p[0] + 1.5, 2.5, p[2] + 1.5])
+    lo, hi = (p[1] - 1.5, p[1] + 1.5) if floor is None else (floor - 0.1, floor + 2.5)
+    return np.array([p[0] - 1.5, lo, p[2] - 1.5, p[0] + 1.5, hi, p[2] + 1.5])
 
 
 class BlobEvidence:
@@ -90,7 +101,7 @@ class BlobEvidence:
         if not self.cameras:
             raise ValueError(f"{dataset.path}: no cameras")
         self.volume = (np.asarray(volume, dtype=np.float64) if len(volume)
-                       else default_volume(self.cameras))
+                       else default_volume(self.cameras, dataset.assumed_floor()))
         if self.volume.shape != (6,) or np.any(self.volume[3:] <= self.volume[:3]):
             raise ValueError(f"option volume must be [xmin, ymin, zmin, xmax, ymax, zmax] with "
                              f"max > min, got {list(volume)}")

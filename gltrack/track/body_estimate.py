@@ -347,7 +347,7 @@ class _SilhouetteFrames:
         the hull reaches below it (masks that spill onto the floor round the feet: 8 cm on the
         Pose2Sim take)."""
         _, masks = self.obs(frame)
-        volume = default_volume(self.obs.pinholes)
+        volume = default_volume(self.obs.pinholes, self.dataset.assumed_floor())
         hull = carve(self.obs.pinholes, masks, volume, base=16, max_depth=3, distort=False)
         if len(hull) == 0:
             raise NoPersonError(f"frame {frame}: the cameras' foreground masks do not meet inside "
@@ -578,10 +578,11 @@ FLOOR_TOLERANCE = 0.05
 #: tracks it with the ``"upper"`` preset. Whole bodies measure more: the simulated walk and hop
 #: 1.4-1.7 m (multi-view and depth), the Pose2Sim take 1.4-1.7 m, and the shortest measured,
 #: the simulated salsa dancer (MakeHuman subject), 1.22 m multi-view and 1.15-1.18 m depth.
-#: Seen above a desk (top ~0.73 m, seat ~0.45 m), an adult's trunk and head (sitting height
-#: 0.8-0.95 m) show 0.5-0.7 m; the caliscope take measures 0.09-0.28 m (its masks hold the face
-#: and hands). Children under about 1 m would be taken for seated: pass ``--dof full``.
-SEATED_HEIGHT = 0.9
+#: Seen above a desk, an adult's trunk and head (sitting height 0.8-0.95 m) show less: the
+#: seated caliscope take's hull is 0.84-0.87 m (the desk hides the legs from some cameras
+#: only). 1.0 m lies between the two. Children under about 1 m would be taken for seated:
+#: pass ``--dof full``.
+SEATED_HEIGHT = 1.0
 
 #: the presets :func:`framing_preset` chooses between
 FRAMING_PRESETS = ("full", "upper")

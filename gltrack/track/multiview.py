@@ -546,7 +546,7 @@ class MultiviewTracker(Tracker):
         self.contact = float(self.opt.ground_contact) if body.dofs.preset != "upper" else 0.0
         #: this frame's ground reference along +Y (metres; :meth:`observe_ground`), None = none
         self.ground = None
-        self._volume = default_volume(self.obs.pinholes)
+        self._volume = default_volume(self.obs.pinholes, dataset.assumed_floor())
         #: the body joints matched with keypoints (indices) and their keypoints per frame
         #: (F, K, 3), or None without keypoints
         self._kp_joints, self._kp_points = keypoint_targets(dataset, self.body, self.opt)
