@@ -53,6 +53,7 @@ def test_learn_end_to_end(clip, tmp_path, capsys):
     assert f"{rep['train_entropy']:.3f}" in text and f"{rep['heldout_entropy']:.3f}" in text
     assert "clusters:" in text and str(out) in text
     assert f"heading rate sd {rep['heading_rate_sd']:.2f} rad/s" in text
+    assert rep["local_covariances"] and "local dynamics:   each cluster's full covariance" in text
     # augmentation multiplies the training frames (3 speeds x 3 smoothings)
     rc = main(["learn", "--motion", str(clip), "--out", str(tmp_path / "b.npz"), "--no-augment",
                "--heldout", "0.25"])

@@ -309,6 +309,7 @@ def test_behaviour_save_load_roundtrip(synth_model, tmp_path):
     assert m2.dof_names == ("a", "b", "c", "d")
     np.testing.assert_array_equal(m2.vel_rho, m.vel_rho)
     np.testing.assert_array_equal(m2.root_dyn, m.root_dyn)
+    np.testing.assert_array_equal(m2.local_covs, m.local_covs)
     X = m.features(params[:50])
     s = np.zeros(50, dtype=int)
     a = m.predict(np.random.default_rng(4), X, s)
@@ -344,6 +345,7 @@ def test_behaviour_load_rejects_bad_files(synth_model, tmp_path):
         "meta.vlmm": dict(meta=np.array(json.dumps(dict(meta, vlmm={"states": "x"})))),
         "vel_rho": dict(vel_rho=np.full(4, 1.5)),
         "root_dynamics": dict(root_dynamics=np.ones((2, 5))),
+        "local_covariances": dict(local_covariances=-m.local_covs),
     }
     for field, change in cases.items():
         bad = tmp_path / f"bad_{field}.npz"
@@ -651,3 +653,116 @@ def test_root_option_and_models_without_root_dynamics(synth_model, tmp_path, cap
     assert VlmmOptions(model="m.npz").validate().root == "ar1"
     with pytest.raises(ValueError, match="root"):
         VlmmOptions.from_dict({"model": "m.npz", "root": "spin"})
+
+
+def test_local_covariances_are_each_clusters_full_covariance():
+    """Two far-apart clusters of correlated samples, described by a mixture with diagonal
+    covariances: each cluster's full covariance about its mean, off-diagonal terms included."""
+    from gltrack.motion.behaviour import local_covariances
+    from gltrack.motion.fjgmm import GaussianMixture
+
+    rng = np.random.default_rng(0)
+    c1 = np.array([[1.0, 0.8, 0.0], [0.8, 1.0, -0.5], [0.0, -0.5, 1.0]])
+    c2 = np.array([[0.5, -0.3, 0.1], [-0.3, 0.4, 0.0], [0.1, 0.0, 0.2]])
+    mu = np.array([[0.0, 0.0, 0.0], [40.0, -40.0, 40.0]])
+    X = np.concatenate([rng.multivariate_normal(mu[0], c1, 20000),
+                        rng.multivariate_normal(mu[1], c2, 20000)])
+    diag = np.stack([np.diag(np.diag(c1)), np.diag(np.diag(c2))])
+    g = GaussianMixture(np.array([0.5, 0.5]), mu, diag)
+    got = local_covariances(X, g, reg=0.0)
+    np.testing.assert_allclose(got[0], c1, atol=0.04)
+    np.testing.assert_allclose(got[1], c2, atol=0.02)
+    np.testing.assert_allclose(got, np.swapaxes(got, 1, 2))
+    assert np.all(np.linalg.eigvalsh(local_covariances(X[:5], g)) > 0)  # reg keeps it definite
+
+
+def _copies_in_a_cluster(m, n=20000, depth=1.0):
+    """n copies of a training frame of the most populated cluster, with its VLMM state; and that
+    cluster. ``depth`` 1: the frame deepest inside the cluster, 0.5 the median one (its angles
+    away from the cluster's mean)."""
+    X = m.features(synthetic_motion(np.random.default_rng(0), 24))
+    lab = m.label(X)
+    k = np.bincount(lab).argmax()
+    inside = np.nonzero(lab == k)[0]
+    order = inside[np.argsort(m.gmm.logpdf_components(X[inside])[:, k])]
+    i = order[min(int(depth * len(order)), len(order) - 1)]
+    return np.repeat(X[i:i + 1], n, axis=0), np.full(n, m.state_for([k])), k
+
+
+def test_full_local_dynamics_move_the_angles_together(synth_model):
+    """local="full": the angles' noise has the cluster's full covariance (the synthetic angles
+    are phase-shifted sines, correlated), "diag" only its diagonal; both share the variances."""
+    _, m = synth_model
+    X, s, k = _copies_in_a_cluster(m)
+    a = m.n_angles
+    full = m.local_covs[k, :a, :a]
+    sd = np.sqrt(np.diag(full))
+    corr = full / np.outer(sd, sd)
+    assert np.max(np.abs(corr - np.eye(a))) > 0.15  # the test needs correlated angles
+    for local, want in (("full", corr), ("diag", np.eye(a))):
+        Xn, sn = m.predict(np.random.default_rng(1), X, s, lam=1.0, lam_dx=0.0,
+                           velocity="walk", local=local)
+        stay = m.vlmm.last_symbol[sn] == k
+        assert stay.mean() > 0.5
+        step = Xn[stay, :a] - X[stay, :a] - X[stay, a:] / m.fps  # = lam * n_x
+        np.testing.assert_allclose(np.std(step, axis=0), np.sqrt(np.diag(m.gmm.covs[k]))[:a],
+                                   rtol=0.05)
+        np.testing.assert_allclose(np.corrcoef(step.T), want, atol=0.05)
+
+
+def test_full_local_dynamics_regress_the_velocity_on_the_angles(synth_model):
+    """With velocity="ar1", "full" takes the velocity's mean where the angles are in the
+    cluster: mu_dx + S_dx,x S_xx^-1 (x - mu_x); "diag" the cluster's mean velocity."""
+    _, m = synth_model
+    X, s, k = _copies_in_a_cluster(m, depth=0.5)
+    a = m.n_angles
+    c, mu = m.local_covs[k], m.gmm.means[k]
+    target = {"full": mu[a:] + c[a:, :a] @ np.linalg.solve(c[:a, :a], X[0, :a] - mu[:a]),
+              "diag": mu[a:]}
+    assert np.linalg.norm(target["full"] - target["diag"]) > 0.1 * np.linalg.norm(mu[a:])
+    for local in ("full", "diag"):
+        Xn, sn = m.predict(np.random.default_rng(2), X, s, lam=0.0, velocity="ar1", local=local)
+        stay = m.vlmm.last_symbol[sn] == k
+        want = target[local] + m.vel_rho * (X[0, a:] - target[local])
+        sd = np.sqrt(np.diag(c)[a:] / stay.sum())
+        np.testing.assert_allclose(Xn[stay, a:].mean(axis=0), want, atol=6 * sd.max())
+
+
+def test_local_option_and_models_without_full_covariances(synth_model, tmp_path, caplog):
+    """A model written before local_covs existed loads; predict refuses "full" with it and the
+    prior falls back to the diagonal covariances with a warning. Bad values are errors."""
+    import logging
+
+    from dataclasses import replace
+
+    from gltrack.body.dofs import make_dofs
+    from gltrack.body.skeleton import default_skeleton
+    from gltrack.motion.vlmm_prior import VlmmPrior
+    from gltrack.track.vlmm import VlmmOptions
+
+    params, m = synth_model
+    assert m.report()["local_covariances"] is True
+    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
+    m.save(good)
+    _rewrite(good, old, local_covariances=None)
+    m_old = BehaviourModel.load(old)
+    assert m_old.local_covs is None and m_old.report()["local_covariances"] is False
+    X = m.features(params[:20])
+    st = np.zeros(20, dtype=int)
+    with pytest.raises(ValueError, match="full cluster covariances"):
+        m_old.predict(np.random.default_rng(0), X, st, local="full")
+    with pytest.raises(ValueError, match="'diag' or 'full'"):
+        m.predict(np.random.default_rng(0), X, st, local="other")
+    with pytest.raises(ValueError, match="local_covs"):
+        replace(m, local_covs=m.local_covs[:1])
+    assert VlmmOptions(model="m.npz").validate().local == "full"
+    with pytest.raises(ValueError, match="local"):
+        VlmmOptions.from_dict({"model": "m.npz", "local": "wide"})
+    dofs = make_dofs(default_skeleton(), "25")
+    names = tuple(dofs.names[6:6 + m.n_angles])
+    with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
+        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).local == "diag"
+    assert "full cluster covariances" in caplog.text
+    assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).local == "full"
+    with pytest.raises(ValueError, match="local"):
+        VlmmPrior(replace(m, dof_names=names), dofs, 30.0, local="wide")

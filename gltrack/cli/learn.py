@@ -104,6 +104,9 @@ def format_report(rep: dict, clips: list) -> str:
     if rep.get("heading_rate_sd") is not None:
         lines.append(f"root dynamics:    heading rate sd {rep['heading_rate_sd']:.2f} rad/s, "
                      f"horizontal speed sd {rep['root_speed_sd']:.2f} m/s")
+    if rep.get("local_covariances"):
+        lines.append("local dynamics:   each cluster's full covariance (angles and velocities "
+                     "together)")
     tr, ho = rep["train_entropy"], rep["heldout_entropy"]
     if ho is not None and tr is not None and ho > 2.0 * tr + 0.25:
         lines.append("note:             held-out entropy is far above the training entropy: the "

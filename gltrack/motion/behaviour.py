@@ -29,6 +29,17 @@ Prediction (section 5) for particles carrying a feature vector and a VLMM state:
   fps; the smoothed copies of the augmentation would raise it to 0.79);
 * otherwise the particle is re-sampled from the new cluster's Gaussian.
 
+The clusters are fitted with diagonal covariances (the MML criterion picks their number; a full
+covariance in ``2 * n_angles`` dimensions costs too many parameters there), so their noise moves
+every angle on its own. The paper's clusters are full ("particles are only propagated in valid
+directions of the parameter space"), and their angle-velocity block makes the prediction
+second-order. The model therefore also keeps each cluster's full covariance
+(:func:`local_covariances`, :attr:`BehaviourModel.local_covs`: the covariance of the frames the
+cluster holds, weighted by their responsibilities), and ``local="full"`` draws the local
+dynamics' noise from it and, with ``velocity="ar1"``, regresses the velocity's mean on the angles
+inside the cluster, ``mu_dx + Sigma_dx,x Sigma_xx^-1 (x - mu_x)``, instead of using the
+cluster's mean velocity (``local="diag"``: the diagonal covariances, as before).
+
 The six root parameters are not in the clusters (the paper propagates them with plain Gaussian
 noise); a caller writes ``X'[:, :n_angles]`` back into ``params[:, 6:]``. The model does learn
 how the root moves (:func:`root_dynamics`, :attr:`BehaviourModel.root_dyn`): the spread and
@@ -82,6 +93,9 @@ class BehaviourModel:
     root_dyn : (2, 6) float array or None, the root's learnt dynamics (:func:`root_dynamics`):
         row 0 the standard deviation of each root parameter's velocity (m/s, rad/s), row 1 its
         lag-1 autocorrelation in [0, 1); None in models written before it was learnt.
+    local_covs : (K, 2 * n_angles, 2 * n_angles) float array or None, each cluster's full
+        covariance (:func:`local_covariances`) for ``predict(local="full")``; None in models
+        written before it was learnt.
     """
 
     gmm: GaussianMixture
@@ -92,6 +106,7 @@ class BehaviourModel:
     info: dict = field(default_factory=dict)
     vel_rho: np.ndarray | None = None
     root_dyn: np.ndarray | None = None
+    local_covs: np.ndarray | None = None
 
     def __post_init__(self):
         if self.gmm.dim != 2 * self.n_angles:
@@ -114,6 +129,12 @@ class BehaviourModel:
             if not _valid_root_dyn(r):
                 raise ValueError("root_dyn must be (2, 6): velocity sds >= 0, rhos in [0, 1)")
             self.root_dyn = r
+        if self.local_covs is not None:
+            c = np.asarray(self.local_covs, dtype=np.float64)
+            if not _valid_local_covs(c, self.gmm.n_components, self.gmm.dim):
+                raise ValueError(f"local_covs must be ({self.gmm.n_components}, {self.gmm.dim}, "
+                                 f"{self.gmm.dim}) symmetric positive definite matrices")
+            self.local_covs = c
 
     # ------------------------------------------------------------------ learning
     @classmethod
@@ -184,13 +205,14 @@ class BehaviourModel:
             raw_labels = [gmm.predict(f) for f in raw_feats]
         rho = velocity_memory(raw_feats, raw_labels, gmm.means[:, n_angles:])
         root = root_dynamics(raw, fps)  # (salsa: the heading's memory 0.76; smoothed 0.91)
+        local = local_covariances(X, gmm, reg)
         info = {"train_frames": int(X.shape[0]), "train_entropy": float(vlmm.entropy(labels)),
                 "velocity_rho_median": float(np.median(rho))}
         if test:
             test_labels = [gmm.predict(feat.motion_features(s, fps)) for s in test]
             info["heldout_frames"] = int(sum(len(t) for t in test_labels))
             info["heldout_entropy"] = float(vlmm.entropy(test_labels))
-        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info, rho, root)
+        model = cls(gmm, vlmm, float(fps), n_angles, tuple(dof_names), info, rho, root, local)
         log.info("behaviour model: %s", model.report())
         return model
 
@@ -240,7 +262,8 @@ class BehaviourModel:
         was used, ``heldout_frames`` and ``heldout_entropy`` (else None), and
         ``velocity_rho_median``, the median of :attr:`vel_rho` (None without it);
         ``root_speed_sd`` (m/s, horizontal) and ``heading_rate_sd`` (rad/s) of
-        :attr:`root_dyn` (None without it). Entropies are model entropies (eq. 2) in bits per
+        :attr:`root_dyn` (None without it); ``local_covariances``, whether the model has
+        :attr:`local_covs`. Entropies are model entropies (eq. 2) in bits per
         frame.
         """
         return {"n_clusters": self.gmm.n_components, "n_states": self.vlmm.n_states,
@@ -254,7 +277,8 @@ class BehaviourModel:
                 "root_speed_sd": (None if self.root_dyn is None
                                   else float(self.root_dyn[0, 0])),
                 "heading_rate_sd": (None if self.root_dyn is None
-                                    else float(self.root_dyn[0, HEADING]))}
+                                    else float(self.root_dyn[0, HEADING])),
+                "local_covariances": self.local_covs is not None}
 
     # ------------------------------------------------------------------ use
     def features(self, params) -> np.ndarray:
@@ -276,6 +300,14 @@ class BehaviourModel:
     def _sqrt_covs(self) -> np.ndarray:
         return sqrtm_psd(self.gmm.covs)
 
+    @cached_property
+    def _local(self) -> tuple[np.ndarray, np.ndarray]:
+        """Square roots (K, d, d) of :attr:`local_covs` and the gains (K, a, a)
+        ``Sigma_dx,x Sigma_xx^-1`` of the velocity's regression on the angles."""
+        c, a = self.local_covs, self.n_angles
+        gain = np.swapaxes(np.linalg.solve(c[:, :a, :a], c[:, :a, a:]), 1, 2)
+        return sqrtm_psd(c), gain
+
     def transition_logprob(self, X, states) -> np.ndarray:
         """Eq. 3: (N, K) normalised log P(k_{t+1} | X_t, q_t) for X (N, d), states (N,)."""
         X = np.asarray(X, dtype=np.float64)
@@ -285,7 +317,7 @@ class BehaviourModel:
 
     def predict(self, rng: np.random.Generator, X, states, lam: float = 0.5,
                 dt: float | None = None, lam_dx: float | None = None,
-                velocity: str = "walk") -> tuple[np.ndarray, np.ndarray]:
+                velocity: str = "walk", local: str = "diag") -> tuple[np.ndarray, np.ndarray]:
         """Propagate particles one frame (eqs. 3 and 4, see module docstring).
 
         Parameters
@@ -301,6 +333,9 @@ class BehaviourModel:
             (None: ``lam``, the paper's single coefficient).
         velocity : "walk" (the paper's eq. 4) or "ar1" (the learnt autoregression about the
             cluster's mean velocity, see the module docstring; needs :attr:`vel_rho`).
+        local : "diag" (the noise from the clusters' diagonal covariances) or "full" (from
+            their full covariances :attr:`local_covs`, and with ``velocity="ar1"`` the
+            velocity's mean regressed on the angles; see the module docstring).
 
         Returns
         -------
@@ -320,6 +355,11 @@ class BehaviourModel:
         if velocity == "ar1" and self.vel_rho is None:
             raise ValueError("this behaviour model has no learnt velocity memory (vel_rho): "
                              "relearn it with gltrack learn, or use velocity 'walk'")
+        if local not in ("diag", "full"):
+            raise ValueError(f"local must be 'diag' or 'full', got {local!r}")
+        if local == "full" and self.local_covs is None:
+            raise ValueError("this behaviour model has no full cluster covariances "
+                             "(local_covs): relearn it with gltrack learn, or use local 'diag'")
         dt = 1.0 / self.fps if dt is None else float(dt)
         lam_dx = lam if lam_dx is None else float(lam_dx)
         n, a = X.shape[0], self.n_angles
@@ -335,14 +375,17 @@ class BehaviourModel:
             cur[fresh] = self.gmm.predict(X[fresh])
         same = nxt == cur
         z = rng.standard_normal((n, 2 * a))
-        roots = self._sqrt_covs
+        roots, gain = self._local if local == "full" else (self._sqrt_covs, None)
         noise = np.einsum("nij,nj->ni", roots[nxt], z)
 
         out = np.empty_like(X)
         if velocity == "walk":
             dx_new = X[same, a:] + lam_dx * noise[same, a:]
         else:
-            mu, rho = self.gmm.means[nxt[same], a:], self.vel_rho
+            k, rho = nxt[same], self.vel_rho
+            mu = self.gmm.means[k, a:]
+            if gain is not None:  # the velocity expected where in the cluster the angles are
+                mu = mu + np.einsum("nij,nj->ni", gain[k], X[same, :a] - self.gmm.means[k, :a])
             dx_new = mu + rho * (X[same, a:] - mu) + np.sqrt(1.0 - rho ** 2) * noise[same, a:]
         out[same, a:] = dx_new
         out[same, :a] = X[same, :a] + dx_new * dt + lam * noise[same, :a]
@@ -360,6 +403,8 @@ class BehaviourModel:
             extra = {} if self.vel_rho is None else {"vel_rho": self.vel_rho}
             if self.root_dyn is not None:
                 extra["root_dynamics"] = self.root_dyn
+            if self.local_covs is not None:
+                extra["local_covariances"] = self.local_covs
             np.savez(f, gmm_weights=self.gmm.weights, gmm_means=self.gmm.means,
                      gmm_covs=self.gmm.covs, gmm_cost_path=self.gmm.cost_path,
                      vlmm_next_dist=self.vlmm.next_dist, meta=np.array(json.dumps(meta)),
@@ -417,8 +462,13 @@ class BehaviourModel:
         if root is not None and (root.dtype.kind != "f" or not _valid_root_dyn(root)):
             raise ValueError(f"{path}: field 'root_dynamics' must be (2, 6) floats: velocity "
                              f"sds >= 0, then autocorrelations in [0, 1)")
+        local = arrays.get("local_covariances")  # optional, as vel_rho
+        if local is not None and (local.dtype.kind != "f" or not _valid_local_covs(
+                local, gmm.n_components, gmm.dim)):
+            raise ValueError(f"{path}: field 'local_covariances' must be ({gmm.n_components}, "
+                             f"{gmm.dim}, {gmm.dim}) symmetric positive definite matrices")
         try:
-            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info, rho, root)
+            return cls(gmm, vlmm, float(fps), n_angles, tuple(names), info, rho, root, local)
         except ValueError as e:
             raise ValueError(f"{path}: field 'meta': {e}") from None
 
@@ -433,6 +483,48 @@ _FLOOR = (0, 2)
 def _valid_vel_rho(r, n_angles: int) -> bool:
     r = np.asarray(r)
     return r.shape == (n_angles,) and bool(np.all((r >= 0) & (r < 1)))
+
+
+def _valid_local_covs(c, k: int, d: int) -> bool:
+    c = np.asarray(c)
+    if c.shape != (k, d, d) or not np.all(np.isfinite(c)) or not np.allclose(
+            c, np.swapaxes(c, 1, 2), rtol=1e-9, atol=1e-12):
+        return False
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def local_covariances(X, gmm: GaussianMixture, reg: float = 1e-6) -> np.ndarray:
+    """Each cluster's full covariance about its mean, over the training feature vectors.
+
+    The clusters are fitted with diagonal covariances; this is the covariance of the frames
+    each one holds, every frame weighted by its responsibility (one E-step of the fitted
+    mixture), with ``reg`` added to the diagonal as in :func:`fit_fj_gmm`. Its diagonal is the
+    cluster's own (variances about the same means); its off-diagonal terms say which angles
+    move together and how the velocity goes with the angles inside the cluster.
+
+    Parameters
+    ----------
+    X : (T, d) float array, the feature vectors the clusters were fitted to.
+    gmm : GaussianMixture fitted to ``X``.
+    reg : float, added to the diagonal.
+
+    Returns
+    -------
+    (K, d, d) float64, symmetric positive definite.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    R = np.exp(gmm.log_responsibilities(X))
+    out = np.empty((gmm.n_components, X.shape[1], X.shape[1]))
+    for k in range(gmm.n_components):
+        w = R[:, k]
+        D = X - gmm.means[k]
+        c = (D * w[:, None]).T @ D / max(float(w.sum()), 1e-12)
+        out[k] = 0.5 * (c + c.T) + reg * np.eye(X.shape[1])
+    return out
 
 
 def _valid_root_dyn(r) -> bool:

@@ -3,7 +3,7 @@
 :class:`VlmmPrior` keeps every particle's feature vector ``X = (angles, velocities)`` and VLMM
 state and moves the modelled joint angles with :meth:`BehaviourModel.predict` (eq. 3: jump to a
 cluster drawn from ``N(X | cluster) * gamma(q, k)``; eq. 4: local second-order dynamics with the
-cluster's own covariance as noise). The six root parameters, which the clusters do not
+cluster's own covariance as noise, by default its full covariance, ``local="full"``). The six root parameters, which the clusters do not
 describe, move with the root dynamics the model learnt (``root="ar1"``: each particle keeps a
 root velocity that follows a stationary autoregression with the training takes' spread and
 memory, :func:`gltrack.motion.behaviour.root_dynamics`) or, as in the paper, with plain
@@ -37,14 +37,16 @@ def _model_indices(model: BehaviourModel, dofs) -> np.ndarray:
     return np.arange(6, dofs.size)
 
 
-def _learnt_or_walk(option: str, value: str, learnt: bool, missing: str) -> str:
-    """``value`` of an "ar1" | "walk" option, or "walk" with a warning when the model lacks
-    what "ar1" learns (``missing`` says what and why)."""
-    if value not in ("ar1", "walk"):
-        raise ValueError(f"{option} must be 'ar1' or 'walk', got {value!r}")
-    if value == "ar1" and not learnt:
+def _learnt_or_walk(option: str, value: str, learnt: bool, missing: str,
+                    choices=("ar1", "walk")) -> str:
+    """``value`` of an option whose first choice needs something learnt ("ar1" | "walk", or
+    ``choices``), or the second choice with a warning when the model lacks it (``missing``
+    says what and why)."""
+    if value not in choices:
+        raise ValueError(f"{option} must be {choices[0]!r} or {choices[1]!r}, got {value!r}")
+    if value == choices[0] and not learnt:
         log.warning("the behaviour model has no learnt %s", missing)
-        return "walk"
+        return choices[1]
     return value
 
 
@@ -88,6 +90,15 @@ class VlmmPrior:
     root_scale : float, multiplier of the root's noise (the learnt velocity spread with
         ``root="ar1"``, the DOF set's root sigmas with "walk")
     other_scale : float, multiplier of the sigmas of body angles the model does not cover
+    local : "full" (default): the local dynamics' noise comes from each cluster's full
+        covariance (:attr:`BehaviourModel.local_covs`), so the angles move together as they do
+        in the training takes, and the velocity's mean is regressed on the angles inside the
+        cluster (the paper's clusters are full, which makes eq. 4 second-order); "diag": the
+        diagonal covariances the MML clustering fits, each angle's noise on its own. With the
+        blob fit from the true pose (``gltrack bench vlmm`` protocol 1, 200 particles, the
+        whole of cmu_60_10, seeds 0-3) "full" gives 77.9 mm RMS against 83.7 with "diag"; the
+        whole system (protocol 2, 1000 particles) 86.1 against 93.9. Models learnt before
+        ``local_covs`` existed fall back to "diag" with a warning
 
     Use: :meth:`reset` with the start particles, then per frame ``x = prior.predict(x, rng)``;
     after resampling call :meth:`select` with the resampling's ancestor indices
@@ -98,7 +109,8 @@ class VlmmPrior:
 
     def __init__(self, model: BehaviourModel, dofs, fps: float, *, lam: float = 0.5,
                  lam_dx: float | None = None, root_scale: float = 1.0,
-                 other_scale: float = 1.0, velocity: str = "ar1", root: str = "ar1"):
+                 other_scale: float = 1.0, velocity: str = "ar1", root: str = "ar1",
+                 local: str = "full"):
         self.model, self.dofs, self.fps, self.lam = model, dofs, float(fps), float(lam)
         self.velocity = _learnt_or_walk(
             "velocity", velocity, model.vel_rho is not None,
@@ -108,6 +120,11 @@ class VlmmPrior:
             "root", root, model.root_dyn is not None,
             "root dynamics (it was learnt by an older gltrack): the root diffuses as in the "
             "paper; relearn it with gltrack learn for the learnt root velocities")
+        self.local = _learnt_or_walk(
+            "local", local, model.local_covs is not None,
+            "full cluster covariances (it was learnt by an older gltrack): the local dynamics' "
+            "noise comes from the diagonal ones; relearn it with gltrack learn for the full "
+            "ones", choices=("full", "diag"))
         self.lam_dx = self.lam if lam_dx is None else float(lam_dx)
         if abs(model.fps - self.fps) > 1e-6 * self.fps:
             log.warning("behaviour model learnt at %g frames/s, data at %g: cluster transitions "
@@ -190,7 +207,8 @@ class VlmmPrior:
         X = self.X.copy()
         X[:, :self._a] = P[:, self.idx]  # a sampler may have moved the angles since
         Xn, sn = self.model.predict(rng, X, self.states, lam=self.lam, lam_dx=self.lam_dx,
-                                    dt=1.0 / self.fps, velocity=self.velocity)
+                                    dt=1.0 / self.fps, velocity=self.velocity,
+                                    local=self.local)
         out = P.copy()
         out[:, self.idx] = Xn[:, :self._a]
         if self.root == "ar1":
@@ -248,8 +266,8 @@ def vlmm_prior(model, dofs, fps: float, **kwargs) -> VlmmPrior:
     model : BehaviourModel or path to a model .npz written by ``gltrack learn``
     dofs : DofSet of the tracked body
     fps : float, frame rate of the tracked data
-    **kwargs : ``lam``, ``lam_dx``, ``root_scale``, ``other_scale``, ``velocity``, ``root`` of
-        :class:`VlmmPrior`
+    **kwargs : ``lam``, ``lam_dx``, ``root_scale``, ``other_scale``, ``velocity``, ``root``,
+        ``local`` of :class:`VlmmPrior`
 
     The samplers of :mod:`gltrack.sample` take it directly:
     ``res = sampler.step(particles, weight_fn, rng, predict_fn=prior.predict)`` then

@@ -530,8 +530,10 @@ class MultiviewTracker(Tracker):
         self.sampler, self.n = make_sampler(self.method, body.dofs, dataset.fps, self.opt)
         self.prior = None
         if self.opt.prior == "vlmm":
+            # the clusters' diagonal covariances, with which prior_lam was measured; the full
+            # ones (the vlmm tracker's default) have not been measured in these trackers
             self.prior = vlmm_prior(self.opt.prior_model, body.dofs, dataset.fps,
-                                    lam=self.opt.prior_lam)
+                                    lam=self.opt.prior_lam, local="diag")
         self.particles = None
         self.frames_done = 0
         self.refines_masks = resolve_mask_refine(self.opt.mask_refine, body.dofs.preset,

@@ -85,6 +85,9 @@ class VlmmOptions(BlobEvidenceOptions):
     root : "ar1" (the root's learnt dynamics: every particle keeps a root velocity with the
         training takes' spread and memory) or "walk" (the paper's Gaussian diffusion with the
         DOF sigmas); see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
+    local : "full" (each cluster's full covariance for the local dynamics' noise, and the
+        velocity regressed on the angles) or "diag" (the clusters' diagonal covariances); see
+        :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
     root_scale, other_scale : multipliers of the root's noise and of the DOF sigmas diffusing
         the angles the model does not cover
     survival : target effective sample size / N that sets the weight exponent (one layer)
@@ -118,6 +121,7 @@ class VlmmOptions(BlobEvidenceOptions):
     velocity: str = "ar1"
     lam_dx: float = 0.5
     root: str = "ar1"
+    local: str = "full"
     root_scale: float = 1.0
     other_scale: float = 1.0
     survival: float = 0.3
@@ -135,6 +139,7 @@ class VlmmOptions(BlobEvidenceOptions):
         bad = super().problems() + [
             *choice(self, "evaluation", EVALUATIONS), *choice(self, "estimate", ("best", "mean")),
             *choice(self, "velocity", ("ar1", "walk")), *choice(self, "root", ("ar1", "walk")),
+            *choice(self, "local", ("full", "diag")),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *within(self, "alpha", 0, 1, open_lo=True, open_hi=True),
@@ -160,7 +165,7 @@ class VlmmTracker(Tracker):
         self.model = BehaviourModel.load(opt.model)
         self.prior = VlmmPrior(self.model, body.dofs, dataset.fps, lam=opt.lam,
                                lam_dx=opt.lam_dx, root_scale=opt.root_scale, velocity=opt.velocity,
-                               root=opt.root, other_scale=opt.other_scale)
+                               root=opt.root, other_scale=opt.other_scale, local=opt.local)
         # the prior is the whole motion step: the filter adds no diffusion of its own (the
         # annealing layers after the first diffuse by the particles' spread, not these sigmas)
         space = StateSpace.from_dofs(body.dofs, dataset.fps)
