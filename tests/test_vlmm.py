@@ -710,17 +710,18 @@ def test_full_local_dynamics_move_the_angles_together(synth_model):
         np.testing.assert_allclose(np.corrcoef(step.T), want, atol=0.05)
 
 
-def test_full_local_dynamics_regress_the_velocity_on_the_angles(synth_model):
-    """With velocity="ar1", "full" takes the velocity's mean where the angles are in the
-    cluster: mu_dx + S_dx,x S_xx^-1 (x - mu_x); "diag" the cluster's mean velocity."""
+def test_regressed_local_dynamics_regress_the_velocity_on_the_angles(synth_model):
+    """With velocity="ar1", "regressed" takes the velocity's mean where the angles are in the
+    cluster: mu_dx + S_dx,x S_xx^-1 (x - mu_x); "full" and "diag" the cluster's mean
+    velocity."""
     _, m = synth_model
     X, s, k = _copies_in_a_cluster(m, depth=0.5)
     a = m.n_angles
     c, mu = m.local_covs[k], m.gmm.means[k]
-    target = {"full": mu[a:] + c[a:, :a] @ np.linalg.solve(c[:a, :a], X[0, :a] - mu[:a]),
-              "diag": mu[a:]}
-    assert np.linalg.norm(target["full"] - target["diag"]) > 0.1 * np.linalg.norm(mu[a:])
-    for local in ("full", "diag"):
+    target = {"regressed": mu[a:] + c[a:, :a] @ np.linalg.solve(c[:a, :a], X[0, :a] - mu[:a]),
+              "full": mu[a:], "diag": mu[a:]}
+    assert np.linalg.norm(target["regressed"] - target["diag"]) > 0.1 * np.linalg.norm(mu[a:])
+    for local in ("regressed", "full", "diag"):
         Xn, sn = m.predict(np.random.default_rng(2), X, s, lam=0.0, velocity="ar1", local=local)
         stay = m.vlmm.last_symbol[sn] == k
         want = target[local] + m.vel_rho * (X[0, a:] - target[local])
@@ -749,9 +750,10 @@ def test_local_option_and_models_without_full_covariances(synth_model, tmp_path,
     assert m_old.local_covs is None and m_old.report()["local_covariances"] is False
     X = m.features(params[:20])
     st = np.zeros(20, dtype=int)
-    with pytest.raises(ValueError, match="full cluster covariances"):
-        m_old.predict(np.random.default_rng(0), X, st, local="full")
-    with pytest.raises(ValueError, match="'diag' or 'full'"):
+    for local in ("full", "regressed"):
+        with pytest.raises(ValueError, match="full cluster covariances"):
+            m_old.predict(np.random.default_rng(0), X, st, local=local)
+    with pytest.raises(ValueError, match="local must be one of"):
         m.predict(np.random.default_rng(0), X, st, local="other")
     with pytest.raises(ValueError, match="local_covs"):
         replace(m, local_covs=m.local_covs[:1])
@@ -762,6 +764,8 @@ def test_local_option_and_models_without_full_covariances(synth_model, tmp_path,
     names = tuple(dofs.names[6:6 + m.n_angles])
     with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
         assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).local == "diag"
+        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0,
+                         local="regressed").local == "diag"
     assert "full cluster covariances" in caplog.text
     assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).local == "full"
     with pytest.raises(ValueError, match="local"):

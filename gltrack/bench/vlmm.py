@@ -104,6 +104,11 @@ PROTOCOL1 = {
             ("vlmm_200_walk", "vlmm", {"particles": 200, "velocity": "walk"}),
             ("vlmm_200_root_walk", "vlmm", {"particles": 200, "root": "walk"}),
             ("vlmm_200_lam_dx0", "vlmm", {"particles": 200, "velocity": "walk", "lam_dx": 0.0}),
+            # the local dynamics' noise from the clusters' diagonal covariances (the default
+            # before the full ones), and the full ones with the velocity regressed on the
+            # angles (VlmmPrior's local)
+            ("vlmm_200_diag", "vlmm", {"particles": 200, "local": "diag"}),
+            ("vlmm_200_regressed", "vlmm", {"particles": 200, "local": "regressed"}),
             # the behaviour prior as the first of 5 annealing layers (option layers), against
             # the diffusion filter with the same 1000 evaluations a frame
             ("vlmm_200x5", "vlmm", {"particles": 200, "layers": 5}),
@@ -122,6 +127,8 @@ PROTOCOL2 = {
             # background frames instead of the dataset's masks): the loop's other speed target
             ("vlmm_1000_colour", "vlmm", {"particles": 1000, "segmentation": "colour"}),
             ("vlmm_200", "vlmm", {"particles": 200}),
+            # the clusters' diagonal covariances for the local dynamics (the default before)
+            ("vlmm_1000_diag", "vlmm", {"particles": 1000, "local": "diag"}),
             # annealing after the prediction, at the diffusion baselines' 5000 evaluations
             ("vlmm_1000x5", "vlmm", {"particles": 1000, "layers": 5}),
             ("condensation_5000", "condensation", {"particles": 5000}),

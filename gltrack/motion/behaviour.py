@@ -36,9 +36,11 @@ directions of the parameter space"), and their angle-velocity block makes the pr
 second-order. The model therefore also keeps each cluster's full covariance
 (:func:`local_covariances`, :attr:`BehaviourModel.local_covs`: the covariance of the frames the
 cluster holds, weighted by their responsibilities), and ``local="full"`` draws the local
-dynamics' noise from it and, with ``velocity="ar1"``, regresses the velocity's mean on the angles
-inside the cluster, ``mu_dx + Sigma_dx,x Sigma_xx^-1 (x - mu_x)``, instead of using the
-cluster's mean velocity (``local="diag"``: the diagonal covariances, as before).
+dynamics' noise from it (``local="diag"``: from the diagonal covariances, as before).
+``local="regressed"`` also takes, with ``velocity="ar1"``, the velocity's mean where the angles
+are inside the cluster, ``mu_dx + Sigma_dx,x Sigma_xx^-1 (x - mu_x)``, instead of the cluster's
+mean velocity: a linear regression over 2 * n_angles dimensions, which did not carry over from
+one unseen take to another (:class:`gltrack.motion.vlmm_prior.VlmmPrior` has the figures).
 
 The six root parameters are not in the clusters (the paper propagates them with plain Gaussian
 noise); a caller writes ``X'[:, :n_angles]`` back into ``params[:, 6:]``. The model does learn
@@ -66,6 +68,9 @@ log = logging.getLogger(__name__)
 
 FORMAT = "gltrack-behaviour"
 VERSION = 1
+#: the local dynamics' noise (``predict(local=...)``): the clusters' diagonal covariances, their
+#: full ones, or the full ones with the velocity regressed on the angles
+LOCAL_DYNAMICS = ("diag", "full", "regressed")
 _ARRAYS = ("gmm_weights", "gmm_means", "gmm_covs", "gmm_cost_path", "vlmm_next_dist", "meta")
 
 
@@ -94,7 +99,8 @@ class BehaviourModel:
         row 0 the standard deviation of each root parameter's velocity (m/s, rad/s), row 1 its
         lag-1 autocorrelation in [0, 1); None in models written before it was learnt.
     local_covs : (K, 2 * n_angles, 2 * n_angles) float array or None, each cluster's full
-        covariance (:func:`local_covariances`) for ``predict(local="full")``; None in models
+        covariance (:func:`local_covariances`) for ``predict(local="full")`` and
+        ``"regressed"``; None in models
         written before it was learnt.
     """
 
@@ -333,9 +339,10 @@ class BehaviourModel:
             (None: ``lam``, the paper's single coefficient).
         velocity : "walk" (the paper's eq. 4) or "ar1" (the learnt autoregression about the
             cluster's mean velocity, see the module docstring; needs :attr:`vel_rho`).
-        local : "diag" (the noise from the clusters' diagonal covariances) or "full" (from
-            their full covariances :attr:`local_covs`, and with ``velocity="ar1"`` the
-            velocity's mean regressed on the angles; see the module docstring).
+        local : "diag" (the noise from the clusters' diagonal covariances), "full" (from their
+            full covariances :attr:`local_covs`) or "regressed" ("full", and with
+            ``velocity="ar1"`` the velocity's mean regressed on the angles; see the module
+            docstring).
 
         Returns
         -------
@@ -355,9 +362,9 @@ class BehaviourModel:
         if velocity == "ar1" and self.vel_rho is None:
             raise ValueError("this behaviour model has no learnt velocity memory (vel_rho): "
                              "relearn it with gltrack learn, or use velocity 'walk'")
-        if local not in ("diag", "full"):
-            raise ValueError(f"local must be 'diag' or 'full', got {local!r}")
-        if local == "full" and self.local_covs is None:
+        if local not in LOCAL_DYNAMICS:
+            raise ValueError(f"local must be one of {LOCAL_DYNAMICS}, got {local!r}")
+        if local != "diag" and self.local_covs is None:
             raise ValueError("this behaviour model has no full cluster covariances "
                              "(local_covs): relearn it with gltrack learn, or use local 'diag'")
         dt = 1.0 / self.fps if dt is None else float(dt)
@@ -375,7 +382,9 @@ class BehaviourModel:
             cur[fresh] = self.gmm.predict(X[fresh])
         same = nxt == cur
         z = rng.standard_normal((n, 2 * a))
-        roots, gain = self._local if local == "full" else (self._sqrt_covs, None)
+        roots, gain = (self._sqrt_covs, None) if local == "diag" else self._local
+        if local == "full":
+            gain = None
         noise = np.einsum("nij,nj->ni", roots[nxt], z)
 
         out = np.empty_like(X)

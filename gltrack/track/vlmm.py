@@ -38,7 +38,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from gltrack.motion.behaviour import BehaviourModel
+from gltrack.motion.behaviour import LOCAL_DYNAMICS, BehaviourModel
 from gltrack.motion.vlmm_prior import VlmmPrior
 from gltrack.observe.blob_evidence import ColourAcquisition, placed_candidates, stage_seconds
 from gltrack.observe.multiview import MultiviewObservation, SilhouetteLikelihood
@@ -85,9 +85,9 @@ class VlmmOptions(BlobEvidenceOptions):
     root : "ar1" (the root's learnt dynamics: every particle keeps a root velocity with the
         training takes' spread and memory) or "walk" (the paper's Gaussian diffusion with the
         DOF sigmas); see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
-    local : "full" (each cluster's full covariance for the local dynamics' noise, and the
-        velocity regressed on the angles) or "diag" (the clusters' diagonal covariances); see
-        :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
+    local : "full" (each cluster's full covariance for the local dynamics' noise), "diag" (the
+        clusters' diagonal covariances) or "regressed" ("full" and the velocity regressed on
+        the angles); see :class:`~gltrack.motion.vlmm_prior.VlmmPrior`
     root_scale, other_scale : multipliers of the root's noise and of the DOF sigmas diffusing
         the angles the model does not cover
     survival : target effective sample size / N that sets the weight exponent (one layer)
@@ -139,7 +139,7 @@ class VlmmOptions(BlobEvidenceOptions):
         bad = super().problems() + [
             *choice(self, "evaluation", EVALUATIONS), *choice(self, "estimate", ("best", "mean")),
             *choice(self, "velocity", ("ar1", "walk")), *choice(self, "root", ("ar1", "walk")),
-            *choice(self, "local", ("full", "diag")),
+            *choice(self, "local", LOCAL_DYNAMICS),
             *at_least(self, 2, "particles"),
             *within(self, "survival", 0, 1, open_lo=True, open_hi=True),
             *within(self, "alpha", 0, 1, open_lo=True, open_hi=True),
