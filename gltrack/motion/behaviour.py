@@ -100,8 +100,7 @@ class BehaviourModel:
         lag-1 autocorrelation in [0, 1); None in models written before it was learnt.
     local_covs : (K, 2 * n_angles, 2 * n_angles) float array or None, each cluster's full
         covariance (:func:`local_covariances`) for ``predict(local="full")`` and
-        ``"regressed"``; None in models
-        written before it was learnt.
+        ``"regressed"``; None in models written before it was learnt.
     """
 
     gmm: GaussianMixture
@@ -382,9 +381,8 @@ class BehaviourModel:
             cur[fresh] = self.gmm.predict(X[fresh])
         same = nxt == cur
         z = rng.standard_normal((n, 2 * a))
-        roots, gain = (self._sqrt_covs, None) if local == "diag" else self._local
-        if local == "full":
-            gain = None
+        roots = self._sqrt_covs if local == "diag" else self._local[0]
+        gain = self._local[1] if local == "regressed" else None
         noise = np.einsum("nij,nj->ni", roots[nxt], z)
 
         out = np.empty_like(X)

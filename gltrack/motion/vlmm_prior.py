@@ -3,12 +3,12 @@
 :class:`VlmmPrior` keeps every particle's feature vector ``X = (angles, velocities)`` and VLMM
 state and moves the modelled joint angles with :meth:`BehaviourModel.predict` (eq. 3: jump to a
 cluster drawn from ``N(X | cluster) * gamma(q, k)``; eq. 4: local second-order dynamics with the
-cluster's own covariance as noise, by default its full covariance, ``local="full"``). The six root parameters, which the clusters do not
-describe, move with the root dynamics the model learnt (``root="ar1"``: each particle keeps a
-root velocity that follows a stationary autoregression with the training takes' spread and
-memory, :func:`gltrack.motion.behaviour.root_dynamics`) or, as in the paper, with plain
-Gaussian diffusion (``root="walk"``); any joint angle of the body that the model does not
-cover gets plain Gaussian diffusion.
+cluster's own covariance as noise, by default its full one, ``local="full"``). The six root
+parameters, which the clusters do not describe, move with the root dynamics the model learnt
+(``root="ar1"``: each particle keeps a root velocity that follows a stationary autoregression
+with the training takes' spread and memory, :func:`gltrack.motion.behaviour.root_dynamics`) or,
+as in the paper, with plain Gaussian diffusion (``root="walk"``); any joint angle of the body
+that the model does not cover gets plain Gaussian diffusion.
 Any particle sampler of :mod:`gltrack.sample` takes it as its ``predict_fn``.
 """
 from __future__ import annotations
