@@ -327,6 +327,29 @@ def _rewrite(src, dst, **changes):
         np.savez(f, **d)
 
 
+def _old_model(m, tmp_path, **missing):
+    """``m`` saved, then rewritten without the arrays named in ``missing`` (as a model written
+    before they were learnt) and loaded again."""
+    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
+    m.save(good)
+    _rewrite(good, old, **missing)
+    return BehaviourModel.load(old)
+
+
+def _prior(m, **kwargs):
+    """A VlmmPrior of ``m`` on the 25-DOF default body, the model's angles named as its first
+    angles."""
+    from dataclasses import replace
+
+    from gltrack.body.dofs import make_dofs
+    from gltrack.body.skeleton import default_skeleton
+    from gltrack.motion.vlmm_prior import VlmmPrior
+
+    dofs = make_dofs(default_skeleton(), "25")
+    names = tuple(dofs.names[6:6 + m.n_angles])
+    return VlmmPrior(replace(m, dof_names=names), dofs, 30.0, **kwargs), dofs
+
+
 def test_behaviour_load_rejects_bad_files(synth_model, tmp_path):
     _, m = synth_model
     good = tmp_path / "good.npz"
@@ -496,18 +519,10 @@ def test_velocity_option_and_models_without_memory(synth_model, tmp_path, caplog
     prior falls back to the walk with a warning. Bad option values are errors."""
     import logging
 
-    from dataclasses import replace
-
-    from gltrack.body.dofs import make_dofs
-    from gltrack.body.skeleton import default_skeleton
-    from gltrack.motion.vlmm_prior import VlmmPrior
     from gltrack.track.vlmm import VlmmOptions
 
     params, m = synth_model
-    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
-    m.save(good)
-    _rewrite(good, old, vel_rho=None)
-    m_old = BehaviourModel.load(old)
+    m_old = _old_model(m, tmp_path, vel_rho=None)
     assert m_old.vel_rho is None and m_old.report()["velocity_rho_median"] is None
     X = m.features(params[:20])
     s = np.zeros(20, dtype=int)
@@ -522,12 +537,10 @@ def test_velocity_option_and_models_without_memory(synth_model, tmp_path, caplog
     assert VlmmOptions(model="m.npz").validate().velocity == "ar1"
     with pytest.raises(ValueError, match="velocity"):
         VlmmOptions.from_dict({"model": "m.npz", "velocity": "fast"})
-    dofs = make_dofs(default_skeleton(), "25")
-    names = tuple(dofs.names[6:6 + m.n_angles])
     with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
-        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).velocity == "walk"
+        assert _prior(m_old)[0].velocity == "walk"
     assert "velocity memory" in caplog.text
-    assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).velocity == "ar1"
+    assert _prior(m)[0].velocity == "ar1"
 
 
 def _root_walk(rng, sd, rho, n=20000, fps=30.0, n_angles=2):
@@ -581,13 +594,7 @@ def test_root_dynamics_recovers_spread_and_memory():
 def _prior_with_root(m, root_dyn, **kwargs):
     from dataclasses import replace
 
-    from gltrack.body.dofs import make_dofs
-    from gltrack.body.skeleton import default_skeleton
-    from gltrack.motion.vlmm_prior import VlmmPrior
-
-    dofs = make_dofs(default_skeleton(), "25")
-    names = tuple(dofs.names[6:6 + m.n_angles])
-    return VlmmPrior(replace(m, dof_names=names, root_dyn=root_dyn), dofs, 30.0, **kwargs), dofs
+    return _prior(replace(m, root_dyn=root_dyn), **kwargs)
 
 
 def test_prior_root_velocities_keep_their_memory(synth_model):
@@ -640,10 +647,7 @@ def test_root_option_and_models_without_root_dynamics(synth_model, tmp_path, cap
 
     _, m = synth_model
     assert m.root_dyn is not None and m.report()["heading_rate_sd"] == m.root_dyn[0, 3]
-    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
-    m.save(good)
-    _rewrite(good, old, root_dynamics=None)
-    m_old = BehaviourModel.load(old)
+    m_old = _old_model(m, tmp_path, root_dynamics=None)
     assert m_old.root_dyn is None and m_old.report()["root_speed_sd"] is None
     with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
         assert _prior_with_root(m_old, None)[0].root == "walk"
@@ -736,17 +740,11 @@ def test_local_option_and_models_without_full_covariances(synth_model, tmp_path,
 
     from dataclasses import replace
 
-    from gltrack.body.dofs import make_dofs
-    from gltrack.body.skeleton import default_skeleton
-    from gltrack.motion.vlmm_prior import VlmmPrior
     from gltrack.track.vlmm import VlmmOptions
 
     params, m = synth_model
     assert m.report()["local_covariances"] is True
-    good, old = tmp_path / "good.npz", tmp_path / "old.npz"
-    m.save(good)
-    _rewrite(good, old, local_covariances=None)
-    m_old = BehaviourModel.load(old)
+    m_old = _old_model(m, tmp_path, local_covariances=None)
     assert m_old.local_covs is None and m_old.report()["local_covariances"] is False
     X = m.features(params[:20])
     st = np.zeros(20, dtype=int)
@@ -760,13 +758,10 @@ def test_local_option_and_models_without_full_covariances(synth_model, tmp_path,
     assert VlmmOptions(model="m.npz").validate().local == "full"
     with pytest.raises(ValueError, match="local"):
         VlmmOptions.from_dict({"model": "m.npz", "local": "wide"})
-    dofs = make_dofs(default_skeleton(), "25")
-    names = tuple(dofs.names[6:6 + m.n_angles])
     with caplog.at_level(logging.WARNING, logger="gltrack.motion.vlmm_prior"):
-        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0).local == "diag"
-        assert VlmmPrior(replace(m_old, dof_names=names), dofs, 30.0,
-                         local="regressed").local == "diag"
+        assert _prior(m_old)[0].local == "diag"
+        assert _prior(m_old, local="regressed")[0].local == "diag"
     assert "full cluster covariances" in caplog.text
-    assert VlmmPrior(replace(m, dof_names=names), dofs, 30.0).local == "full"
+    assert _prior(m)[0].local == "full"
     with pytest.raises(ValueError, match="local"):
-        VlmmPrior(replace(m, dof_names=names), dofs, 30.0, local="wide")
+        _prior(m, local="wide")
