@@ -6,8 +6,8 @@ from gltrack.bench.rigs import ring_cameras
 from gltrack.bench.vlmm import render_masks
 from gltrack.body.mesh import BodyMesh
 from gltrack.body.model import BodyModel
-from gltrack.observe.blobs import (BlobModel, Blobs, fit_blobs, gaussian_kl, mixture_kl,
-                                   mixture_loglik)
+from gltrack.observe.blobs import (BlobModel, Blobs, PartColours, fit_blobs, fit_blobs_from,
+                                   gaussian_kl, mixture_kl, mixture_loglik)
 from gltrack.observe.voxels import carve
 
 
@@ -147,6 +147,82 @@ def test_fit_input_checks(body):
         fit_blobs(np.zeros((4, 3)), b, point_weights=-np.ones(4))
     with pytest.raises(ValueError, match="blobs"):
         mixture_kl(b, Blobs(np.zeros((3, 3)), np.stack([np.eye(3)] * 3), np.ones(3) / 3))
+
+
+def _em_direct(X, init, w, iterations, hard, colours=None, part_colour=None, reg=1e-4,
+               min_support=1e-3):
+    """The EM of fit_blobs written the direct way: scipy's densities of every point under
+    every blob, explicit weighted sums about each new mean; one start (an independent twin of
+    the feature-moment version)."""
+    from scipy.special import logsumexp
+    from scipy.stats import multivariate_normal
+
+    mean, cov = init.means.copy(), init.covs + np.eye(3) * reg
+    pi = init.weights / init.weights.sum()
+    w = w / w.sum()
+    col = 0.0 if colours is None else np.stack(
+        [multivariate_normal(m, c).logpdf(colours) for m, c in
+         zip(part_colour.means, part_colour.covs)], axis=1)
+    for it in range(iterations + 1):
+        lp = np.stack([multivariate_normal(m, c).logpdf(X) for m, c in zip(mean, cov)],
+                      axis=1) + np.log(pi) + col
+        norm = logsumexp(lp, axis=1)
+        ll = float(w @ norm)
+        if it == iterations:
+            return Blobs(mean, cov, pi), ll
+        r = np.exp(lp - norm[:, None])
+        if hard:
+            r = (np.arange(len(pi))[None] == np.argmax(lp, axis=1)[:, None]).astype(float)
+        for p in range(len(pi)):
+            rw = r[:, p] * w
+            nk = rw.sum()
+            if nk > min_support:
+                m = rw @ X / nk
+                d = X - m
+                mean[p], cov[p] = m, (d * rw[:, None]).T @ d / nk + np.eye(3) * reg
+        nk = (r * w[:, None]).sum(axis=0)
+        pi = np.where(nk > min_support, nk, min_support)
+        pi = pi / pi.sum()
+
+
+@pytest.mark.parametrize("hard", [False, True])
+@pytest.mark.parametrize("colour", [False, True])
+def test_batched_fit_is_the_direct_em(hard, colour):
+    """fit_blobs_from (all starts at once, the EM steps through ten point features) against
+    the direct EM of each start on its own, on room coordinates far from the origin; a changed
+    start changes its fit and no other."""
+    rng = np.random.default_rng(7)
+    M, P, K = 600, 6, 3
+    X = rng.normal(0.0, 0.3, (M, 3)) + [2.5, 0.9, -1.8]
+    w = rng.uniform(0.5, 1.5, M)
+    means = X[rng.choice(M, (K, P))] + rng.normal(0.0, 0.05, (K, P, 3))
+    covs = _random_spd(rng, K * P).reshape(K, P, 3, 3) * 0.01
+    weights = rng.dirichlet(np.ones(P), K)
+    kw = {}
+    if colour:
+        kw = {"colours": rng.normal(0.0, 30.0, (M, 3)),
+              "part_colour": PartColours(rng.normal(0.0, 30.0, (P, 3)),
+                                         np.repeat(np.eye(3)[None] * 900.0, P, 0))}
+    got, ll = fit_blobs_from(X, Blobs(means, covs, weights), point_weights=w, iterations=4,
+                             hard=hard, **kw)
+    for k in range(K):
+        ref, ll_ref = _em_direct(X, Blobs(means[k], covs[k], weights[k]), w, 4, hard, **kw)
+        np.testing.assert_allclose(got.means[k], ref.means, atol=1e-10)
+        np.testing.assert_allclose(got.covs[k], ref.covs, atol=1e-10)
+        np.testing.assert_allclose(got.weights[k], ref.weights, atol=1e-10)
+        assert ll[k] == pytest.approx(ll_ref, abs=1e-9)
+        one, ll_one = fit_blobs(X, Blobs(means[k], covs[k], weights[k]), point_weights=w,
+                                iterations=4, hard=hard, **kw)
+        np.testing.assert_allclose(one.means, got.means[k], atol=1e-12)
+        assert ll_one == pytest.approx(ll[k], abs=1e-12)
+    moved = means.copy()
+    moved[1] += 0.2
+    again, ll2 = fit_blobs_from(X, Blobs(moved, covs, weights), point_weights=w, iterations=4,
+                                hard=hard, **kw)
+    assert np.abs(again.means[1] - got.means[1]).max() > 1e-3
+    np.testing.assert_array_equal(again.means[[0, 2]], got.means[[0, 2]])
+    with pytest.raises(ValueError, match="batch"):
+        fit_blobs_from(X, Blobs(means[0], covs[0], weights[0]))
 
 
 def test_colour_keeps_blobs_on_their_own_parts():

@@ -1,4 +1,6 @@
 """Hierarchical shape-from-silhouette voxels against an analytic sphere and brute force."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -81,6 +83,34 @@ def test_coarse_to_fine_equals_brute_force(scene):
         assert tests < 0.5 * (5 * 8) ** 3 * len(cams)
         volumes.append(h.volume)
     assert volumes[1] > volumes[0]  # ignoring one camera's "background" keeps more
+
+
+def test_block_boxes_are_each_voxels_own_boxes(rng):
+    """block_boxes (each lattice corner projected once, the extremes taken per axis) against
+    pixel_boxes of every voxel's own eight corners, with lens distortion and voxels behind
+    the camera; the coarse grid as one block and the octants of split voxels."""
+    from gltrack.observe.voxels import _first_block, _grid, _octants, block_boxes, pixel_boxes
+
+    cam = look_at_camera("c", np.array([0.3, 1.2, 2.0]), CENTRE, 120, 100, 50)
+    cam = dataclasses.replace(cam, dist=np.array([-0.2, 0.05, 0.001, -0.002, 0.0]))
+    # a volume the camera stands inside: some voxels lie (partly) behind it
+    origin, size0, ijk = _grid((-0.6, 0.3, -0.7, 0.8, 1.7, 2.6), 6)
+    blocks, extent = _first_block(ijk)
+    for level in range(3):
+        size = size0 / 2 ** level
+        got = block_boxes(cam, origin, size, blocks, extent, True)
+        ref = pixel_boxes(cam, origin + ijk * size, np.full(len(ijk), size), True)
+        np.testing.assert_array_equal(got[0], ref[0])
+        assert 0 < got[0].sum() < len(ijk)
+        for a, b in zip(got[1:], ref[1:]):
+            f = got[0]
+            assert np.abs(a[f] - b[f]).max() <= 1  # a corner on a pixel edge may round apart
+            assert np.mean(a[f] == b[f]) > 0.999
+        split = rng.choice(len(ijk), size=min(40, len(ijk)), replace=False)
+        ijk, blocks, extent = _octants(ijk[split])
+    still = block_boxes(cam, origin, size, blocks, extent, True)
+    moved = block_boxes(cam, origin + 0.05, size, blocks, extent, True)
+    assert np.any(moved[1] != still[1])
 
 
 def test_points_split_and_colours(scene):

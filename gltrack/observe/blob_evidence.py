@@ -27,8 +27,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .blobs import (BlobModel, bgr_to_yuv, fit_blobs, mixture_kl, mixture_loglik, part_colours,
-                    place_on_centroid)
+from .blobs import (BlobModel, bgr_to_yuv, fit_blobs, fit_blobs_from, mixture_kl, mixture_loglik,
+                    part_colours, place_on_centroid)
 from .voxels import carve, point_colours
 
 log = logging.getLogger(__name__)
@@ -244,16 +244,17 @@ class BlobEvidence:
             return -np.inf
         pts, vol = self._points
         with self._timed("blob_fit"):
-            init = self.blobs(init_poses)
-            best, best_ll = None, -np.inf
             # Starting also from last frame's fit was tried: it lets the evidence drift away
             # from body-shaped blobs over time (salsa, 1000 particles: 62 mm instead of 47 mm)
-            for start in (init[i] for i in range(init.means.shape[0])):
-                b, ll = fit_blobs(pts, start, point_weights=vol, iterations=self.fit_iterations,
-                                  colours=self._colours, part_colour=self.part_colour)
-                if ll > best_ll:
-                    best, best_ll = b, ll
-        self.observed, self.fit_loglik = best, float(best_ll)
+            fitted, ll = fit_blobs_from(pts, self.blobs(init_poses), point_weights=vol,
+                                        iterations=self.fit_iterations, colours=self._colours,
+                                        part_colour=self.part_colour)
+            # the first of equal likelihoods, as a loop over the starts kept it
+            best = int(np.argmax(np.where(np.isnan(ll), -np.inf, ll)))
+        if not ll[best] > -np.inf:  # no start gave a finite fit: no evidence
+            self.observed, self.fit_loglik = None, -np.inf
+        else:
+            self.observed, self.fit_loglik = fitted[best], float(ll[best])
         return self.fit_loglik
 
     def acquire(self, params, rate: float = 1.0) -> None:

@@ -52,8 +52,8 @@ from scipy.optimize import linprog
 from scipy.stats import chi2
 
 from gltrack.observe.background import YuvBackground, check_bgr
-from gltrack.observe.voxels import (_CORNERS, BACKGROUND, EDGE, FOREGROUND, Voxels, _decide,
-                                    _grid, centre_pixels, pixel_boxes)
+from gltrack.observe.voxels import (BACKGROUND, EDGE, FOREGROUND, Voxels, _decide, _first_block,
+                                    _grid, _octants, block_boxes, centre_pixels, pixel_boxes)
 
 log = logging.getLogger(__name__)
 
@@ -130,8 +130,11 @@ class _ColourView:
         all_sum : (M, 3) float64, BGR sum of all samples
         all_n : (M,) int64, samples drawn (``k``; 0 for an unseen voxel)
         """
-        M = len(lo)
-        front, lo_px, hi_px = pixel_boxes(self.cam, lo, size, self.distort)
+        return self.classify_boxes(*pixel_boxes(self.cam, lo, size, self.distort), colours)
+
+    def classify_boxes(self, front, lo_px, hi_px, colours: bool = True):
+        """:meth:`classify` from the voxels' pixel boxes (:func:`pixel_boxes`)."""
+        M = len(front)
         W, H = self.cam.width, self.cam.height
         c0, c1 = np.clip(lo_px[:, 0], 0, W), np.clip(hi_px[:, 0], 0, W)
         r0, r1 = np.clip(lo_px[:, 1], 0, H), np.clip(hi_px[:, 1], 0, H)
@@ -234,6 +237,7 @@ def carve_colour(cameras, images, backgrounds, bounds, *, base: int = 16, max_de
              for c, im, bg in zip(cameras, images, backgrounds)]
 
     origin, size0, ijk = _grid(bounds, base)
+    blocks, extent = _first_block(ijk)
     kept_ijk, kept_lv, kept_col, levels = [], [], [], []
     tests = samples = 0
     for level in range(int(max_depth) + 1):
@@ -241,7 +245,8 @@ def carve_colour(cameras, images, backgrounds, bounds, *, base: int = 16, max_de
             break
         size = size0 / 2.0 ** level
         lo = origin + ijk * size
-        out = [v.classify(lo, np.full(len(ijk), size), colours) for v in views]
+        out = [v.classify_boxes(*block_boxes(v.cam, origin, size, blocks, extent, distort),
+                                colours) for v in views]
         states = np.stack([o[0] for o in out])
         counts = {name: int(np.sum(states == s)) for name, s in
                   (("background", BACKGROUND), ("edge", EDGE), ("foreground", FOREGROUND))}
@@ -257,7 +262,7 @@ def carve_colour(cameras, images, backgrounds, bounds, *, base: int = 16, max_de
         kept_lv.append(np.full(int(keep.sum()), level, np.int64))
         levels.append({"voxels": len(ijk), "kept": int(keep.sum()), "split": int(split.sum()),
                        **counts})
-        ijk = (2 * ijk[split][:, None, :] + _CORNERS.astype(np.int64)[None]).reshape(-1, 3)
+        ijk, blocks, extent = _octants(ijk[split])
 
     vox = Voxels(np.concatenate(kept_ijk) if kept_ijk else np.zeros((0, 3), np.int64),
                  np.concatenate(kept_lv) if kept_lv else np.zeros(0, np.int64), origin, size0,

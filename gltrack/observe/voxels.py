@@ -124,7 +124,10 @@ class _MaskTable:
 
     def classify(self, lo, size):
         """(M,) states of voxels with world corner ``lo`` (M, 3) and edge ``size`` (M,)."""
-        front, lo_px, hi_px = pixel_boxes(self.cam, lo, size, self.distort)
+        return self.classify_boxes(*pixel_boxes(self.cam, lo, size, self.distort))
+
+    def classify_boxes(self, front, lo_px, hi_px):
+        """(M,) states of voxels from their pixel boxes (:func:`pixel_boxes`)."""
         area = (hi_px[:, 0] - lo_px[:, 0]) * (hi_px[:, 1] - lo_px[:, 1])
         W, H = self.cam.width, self.cam.height
         c0 = np.clip(lo_px[:, 0], 0, W)
@@ -134,7 +137,7 @@ class _MaskTable:
         c1, r1 = np.maximum(c1, c0), np.maximum(r1, r0)
         s = self.sat
         count = s[r1, c1] - s[r0, c1] - s[r1, c0] + s[r0, c0]
-        state = np.full(len(lo), EDGE, np.int8)
+        state = np.full(len(front), EDGE, np.int8)
         state[front & (count == 0)] = BACKGROUND
         state[front & (count == area)] = FOREGROUND
         return state
@@ -175,6 +178,51 @@ def pixel_boxes(camera, lo, size, distort: bool):
         np.minimum(uv_lo, uv[:, i], out=uv_lo)
         np.maximum(uv_hi, uv[:, i], out=uv_hi)
         np.minimum(z_lo, z[:, i], out=z_lo)
+    return _boxes(uv_lo, uv_hi, z_lo)
+
+
+def block_boxes(camera, origin, size: float, blocks, extent, distort: bool):
+    """:func:`pixel_boxes` of the voxels of whole blocks, each corner projected once.
+
+    A block is ``extent`` voxels of edge ``size`` along each axis from the lattice point
+    ``blocks[b]`` (the coarse grid is one block, the octants of each split voxel one block of
+    2 x 2 x 2); its voxels share the corners of a lattice of ``extent + 1`` points per axis, so
+    27 points are projected for 8 octants instead of 64, and each voxel's box is the minimum
+    and maximum over its 2 x 2 x 2 lattice neighbourhood, taken one axis at a time.
+
+    Parameters
+    ----------
+    camera : gltrack.camera.Camera
+    origin : (3,) float, world position of lattice point 0, metres
+    size : float, voxel edge, metres
+    blocks : (B, 3) int, lattice coordinates of each block's first corner
+    extent : (3,) int, voxels per block along each axis
+    distort : bool, project with the lens distortion
+
+    Returns
+    -------
+    front, lo_px, hi_px : as :func:`pixel_boxes`, for the B * prod(extent) voxels in the
+        order block by block, each block's voxels in C order (the last axis fastest), i.e.
+        voxel ``blocks[b] + (i, j, k)``.
+    """
+    e = np.asarray(extent, dtype=np.int64)
+    B = len(blocks)
+    q = np.stack(np.meshgrid(*[np.arange(n + 1) for n in e], indexing="ij"), -1).reshape(-1, 3)
+    pts = np.asarray(origin, np.float64) + (np.asarray(blocks)[:, None, :] + q[None]) * size
+    shape = (B, *(e + 1))
+    z = camera.depth_of(pts).reshape(shape)
+    uv = camera.project(pts.reshape(-1, 3), distort=distort).reshape(*shape, 2)
+    lo, hi = uv, uv
+    for axis in (1, 2, 3):  # minimum / maximum over neighbouring lattice points, per axis
+        a, b = (slice(None),) * axis + (slice(None, -1),), (slice(None),) * axis + (slice(1, None),)
+        lo, hi = np.minimum(lo[a], lo[b]), np.maximum(hi[a], hi[b])
+        z = np.minimum(z[a], z[b])
+    return _boxes(lo.reshape(-1, 2), hi.reshape(-1, 2), z.reshape(-1))
+
+
+def _boxes(uv_lo, uv_hi, z_lo):
+    """front, lo_px, hi_px of :func:`pixel_boxes` from each voxel's projected corners' extremes
+    (M, 2) and nearest depth (M,) (NaN, from a corner with no projection, makes it not front)."""
     front = (z_lo > 1e-6) & np.isfinite(uv_lo).all(axis=1) & np.isfinite(uv_hi).all(axis=1)
     lo_px = np.floor(np.where(front[:, None], uv_lo, 0.0) + 0.5).astype(np.int64)
     hi_px = np.floor(np.where(front[:, None], uv_hi, 0.0) + 0.5).astype(np.int64) + 1
@@ -205,6 +253,18 @@ def _grid(bounds, base):
     n = np.maximum(np.ceil(ext / size0 - 1e-9).astype(np.int64), 1)
     ijk = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij"), -1).reshape(-1, 3)
     return b[:3].copy(), size0, ijk
+
+
+def _first_block(ijk):
+    """The coarse grid ``ijk`` of :func:`_grid` as one block of :func:`block_boxes`."""
+    return np.zeros((1, 3), np.int64), ijk.max(axis=0) + 1
+
+
+def _octants(ijk):
+    """The octants of voxels ``ijk`` (M, 3), one level finer: (8M, 3) in the order of
+    :func:`block_boxes`, and their blocks (M, 3) and extent (3,)."""
+    return ((2 * ijk[:, None, :] + _CORNERS.astype(np.int64)[None]).reshape(-1, 3), 2 * ijk,
+            np.full(3, 2, np.int64))
 
 
 def _decide(states, tolerance, final, tables, centres):
@@ -256,20 +316,21 @@ def carve(cameras, masks, bounds, *, base: int = 16, max_depth: int = 3, toleran
     _check_inputs(cameras, masks, tolerance, max_depth)
     tables = [_MaskTable(c, m, distort) for c, m in zip(cameras, masks)]
     origin, size0, ijk = _grid(bounds, base)
+    blocks, extent = _first_block(ijk)
     kept_ijk, kept_lv = [], []
     tests = 0
     for level in range(int(max_depth) + 1):
         if len(ijk) == 0:
             break
         size = size0 / 2.0 ** level
-        lo = origin + ijk * size
-        sizes = np.full(len(ijk), size)
-        states = np.stack([t.classify(lo, sizes) for t in tables])
+        states = np.stack([t.classify_boxes(*block_boxes(t.cam, origin, size, blocks, extent,
+                                                          distort)) for t in tables])
         tests += states.size
-        keep, split = _decide(states, tolerance, level == max_depth, tables, lo + 0.5 * size)
+        keep, split = _decide(states, tolerance, level == max_depth, tables,
+                              origin + ijk * size + 0.5 * size)
         kept_ijk.append(ijk[keep])
         kept_lv.append(np.full(int(keep.sum()), level, np.int64))
-        ijk = (2 * ijk[split][:, None, :] + _CORNERS.astype(np.int64)[None]).reshape(-1, 3)
+        ijk, blocks, extent = _octants(ijk[split])
     carve.last_stats = {"classifications": int(tests)}
     vox = Voxels(np.concatenate(kept_ijk) if kept_ijk else np.zeros((0, 3), np.int64),
                  np.concatenate(kept_lv) if kept_lv else np.zeros(0, np.int64), origin, size0)
