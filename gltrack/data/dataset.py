@@ -35,7 +35,9 @@ import os
 import re
 import shutil
 import tempfile
+import threading
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from glob import escape as glob_escape
 from pathlib import Path
 
@@ -62,6 +64,22 @@ def _natural_key(name):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
+#: Images read ahead (:meth:`ImageFolder.prefetch`) per folder; older ones are dropped.
+PREFETCH_DEPTH = 2
+_readers: ThreadPoolExecutor | None = None
+_readers_lock = threading.Lock()
+
+
+def _reader_pool() -> ThreadPoolExecutor:
+    """The threads that read images ahead (OpenCV decodes without holding the GIL, so a read
+    overlaps the tracker's numpy work)."""
+    global _readers
+    with _readers_lock:
+        if _readers is None:
+            _readers = ThreadPoolExecutor(max_workers=2, thread_name_prefix="gltrack-read")
+        return _readers
+
+
 class ImageFolder:
     """A folder of images as a read-only sequence, in natural name order.
 
@@ -72,7 +90,8 @@ class ImageFolder:
     Notes
     -----
     ``folder[i]`` is the image as stored (``cv2.IMREAD_UNCHANGED``): (H, W) or (H, W, C), uint8 or
-    uint16, colour channels in BGR order.
+    uint16, colour channels in BGR order. :meth:`prefetch` starts reading an image in a
+    background thread; ``folder[i]`` then takes it from there (or reads it itself).
     """
 
     def __init__(self, folder):
@@ -82,6 +101,16 @@ class ImageFolder:
         self.files = sorted((p for p in self.folder.iterdir()
                              if p.suffix.lower() in IMAGE_EXTS and not p.name.startswith(".")),
                             key=lambda p: _natural_key(p.name))
+        self._ahead = {}
+
+    def prefetch(self, i) -> None:
+        """Start reading image ``i`` in the background (ignored out of range or when under
+        way); at most :data:`PREFETCH_DEPTH` images are held."""
+        if not 0 <= i < len(self.files) or i in self._ahead:
+            return
+        while len(self._ahead) >= PREFETCH_DEPTH:
+            self._ahead.pop(next(iter(self._ahead)))
+        self._ahead[i] = _reader_pool().submit(self._read, i)
 
     def __len__(self):
         return len(self.files)
@@ -92,6 +121,10 @@ class ImageFolder:
     def __getitem__(self, i):
         if not 0 <= i < len(self.files):
             raise IndexError(f"{self.folder}: frame {i} out of range 0..{len(self.files) - 1}")
+        ahead = self._ahead.pop(i, None)
+        return self._read(i) if ahead is None else ahead.result()
+
+    def _read(self, i):
         path = self.files[i]
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None:
@@ -451,6 +484,24 @@ class Dataset:
         img = stream[frame]
         _check_image(img, stream.path(frame), c, "colour")
         return img
+
+    def prefetch(self, frame, *, colour: bool = True, masks: bool = False) -> None:
+        """Start reading ``frame``'s colour images (and foreground masks) of every camera in
+        the background, for a tracker that will ask for them next; a frame out of range,
+        video cameras and absent masks are skipped. The reads check the images as usual when
+        they are taken."""
+        frame = int(frame)
+        if not 0 <= frame < self.frames:
+            return
+        for c in self.cameras:
+            streams = []
+            if colour and c.kind == "colour":
+                streams.append(self._stream(c))
+            if masks:
+                streams.append(self._mask_stream(c, "mask"))
+            for s in streams:
+                if isinstance(s, ImageFolder):
+                    s.prefetch(frame)
 
     def _read_mask(self, frame, cam, role):
         c = self._cam(cam)

@@ -159,23 +159,21 @@ class BlobEvidence:
             self._backgrounds = models
         return self._backgrounds
 
-    def _carve(self, frame, images):
-        if self.segmentation == "colour":
-            from gltrack.observe.colour_carve import carve_colour
+    def _carve_colour(self, images):
+        from gltrack.observe.colour_carve import carve_colour
 
-            # the blobs sample the colours of their own (split) points: no voxel colours
-            return carve_colour(self.cameras, images, self._background_models(), self.volume,
-                                base=self.base, max_depth=self.max_depth,
-                                tolerance=self.tolerance, colours=False)
-        masks = []
-        for i, c in enumerate(self.cameras):
-            m = self.ds.mask(frame, i)
+        # the blobs sample the colours of their own (split) points: no voxel colours
+        return carve_colour(self.cameras, images, self._background_models(), self.volume,
+                            base=self.base, max_depth=self.max_depth,
+                            tolerance=self.tolerance, colours=False)
+
+    def _carve_masks(self, masks):
+        for c, m in zip(self.cameras, masks):
             if m is None:
                 raise ValueError(f"{self.ds.path}: camera {c.name} has no foreground masks "
                                  "(camN_mask); use segmentation = 'colour'")
-            masks.append(np.asarray(m, bool))
-        return carve(self.cameras, masks, self.volume, base=self.base,
-                     max_depth=self.max_depth, tolerance=self.tolerance)
+        return carve(self.cameras, [np.asarray(m, bool) for m in masks], self.volume,
+                     base=self.base, max_depth=self.max_depth, tolerance=self.tolerance)
 
     def set_frame(self, frame: int) -> None:
         """Reconstruct ``frame``'s voxels (timed as ``voxels``); resets the stage timers."""
@@ -184,9 +182,14 @@ class BlobEvidence:
         self.seconds = dict.fromkeys(STAGES, 0.0)
         with self._timed("voxels"):
             # read once: the colour test and the voxels' colours both need the frame's images
-            images = [self.ds.colour(frame, i) for i in range(len(self.cameras))] \
-                if self.use_colour or self.segmentation == "colour" else None
-            self.voxels = self._carve(frame, images)
+            by_colour = self.segmentation == "colour"
+            cams = range(len(self.cameras))
+            images = [self.ds.colour(frame, i) for i in cams] \
+                if self.use_colour or by_colour else None
+            masks = None if by_colour else [self.ds.mask(frame, i) for i in cams]
+            # the next frame's files are read while this one is carved and tracked
+            self.ds.prefetch(frame + 1, colour=images is not None, masks=masks is not None)
+            self.voxels = self._carve_colour(images) if by_colour else self._carve_masks(masks)
             self._points = self.voxels.points(max_size=self.point_size) if len(self.voxels) \
                 else None
             self._colours = None

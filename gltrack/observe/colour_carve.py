@@ -53,12 +53,18 @@ from scipy.stats import chi2
 
 from gltrack.observe.background import YuvBackground, check_bgr
 from gltrack.observe.voxels import (BACKGROUND, EDGE, FOREGROUND, Voxels, _decide, _first_block,
-                                    _grid, _octants, block_boxes, centre_pixels, pixel_boxes)
+                                    _grid, _octants, centre_pixels, classify_level, pixel_boxes)
 
 log = logging.getLogger(__name__)
 
 #: 1 / g and 1 / g^2 with g the plastic number: the R2 low-discrepancy sequence (M. Roberts 2018).
 _R2 = (0.7548776662466927, 0.5698402909980532)
+
+
+def _r2_fractions(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) x and y fractions in [0, 1) of the first n points of the R2 sequence, from 0.5."""
+    j = np.arange(n)
+    return (0.5 + j * _R2[0]) % 1.0, (0.5 + j * _R2[1]) % 1.0
 
 
 @functools.lru_cache(maxsize=32)
@@ -146,24 +152,29 @@ class _ColourView:
 
         vox = np.repeat(np.arange(M), k)
         j = np.arange(len(vox)) - np.repeat(np.cumsum(k) - k, k)
-        fx = (0.5 + j * _R2[0]) % 1.0
-        fy = (0.5 + j * _R2[1]) % 1.0
-        px = c0[vox] + (fx * w[vox]).astype(np.int64)
-        py = r0[vox] + (fy * h[vox]).astype(np.int64)
-        d = self.dm[py, px]
+        # sample j of every voxel sits at the same fractions of its box: look them up
+        fx, fy = _r2_fractions(int(k.max()) if M else 0)
+        px = np.repeat(c0, k) + (fx[j] * np.repeat(w, k)).astype(np.int64)
+        py = np.repeat(r0, k) + (fy[j] * np.repeat(h, k)).astype(np.int64)
+        d = self.dm.ravel()[py * W + px]
         fg = d > self.t1
-        total = np.bincount(vox, weights=d, minlength=M)
-        fg_n = np.bincount(vox, weights=fg, minlength=M).astype(np.int64)
+        # per-voxel sums over the voxels' consecutive runs of samples (4x bincount's speed)
+        seen = k > 0
+        first = (np.cumsum(k) - k)[seen]
+        total = np.zeros(M)
+        fg_n = np.zeros(M, np.int64)
+        if len(first):
+            total[seen] = np.add.reduceat(d, first)
+            fg_n[seen] = np.add.reduceat(fg.astype(np.int64), first)
 
         state = np.full(M, EDGE, np.int8)
-        seen = area > 0
         state[front & ~seen] = BACKGROUND
         state[seen & (fg_n == k) & inside] = FOREGROUND
         state[seen & (total <= self.poly(k))] = BACKGROUND
 
         if not colours:
             return state, None, None, None, k
-        bgr = self.img[py, px].astype(np.float64)
+        bgr = self.img.reshape(-1, 3)[py * W + px].astype(np.float64)
         fg_sum = np.stack([np.bincount(vox, weights=bgr[:, c] * fg, minlength=M)
                            for c in range(3)], axis=1)
         all_sum = np.stack([np.bincount(vox, weights=bgr[:, c], minlength=M)
@@ -176,6 +187,15 @@ class _ColourView:
         fg = np.zeros(len(centres), bool)
         fg[ok] = self.dm[px[ok, 1], px[ok, 0]] > self.t1
         return np.where(fg, FOREGROUND, BACKGROUND).astype(np.int8)
+
+
+def _scatter(M, looked, parts):
+    """(C, M, ...) per-camera values of M voxels from each camera's values (m_c, ...) for the
+    voxels it looked at (``looked``), zeros elsewhere."""
+    out = np.zeros((len(parts), M) + parts[0].shape[1:], parts[0].dtype)
+    for c, (idx, v) in enumerate(zip(looked, parts)):
+        out[c, idx] = v
+    return out
 
 
 def _colours(states, fg_sum, fg_n, all_sum, all_n):
@@ -245,19 +265,21 @@ def carve_colour(cameras, images, backgrounds, bounds, *, base: int = 16, max_de
             break
         size = size0 / 2.0 ** level
         lo = origin + ijk * size
-        out = [v.classify_boxes(*block_boxes(v.cam, origin, size, blocks, extent, distort),
-                                colours) for v in views]
-        states = np.stack([o[0] for o in out])
-        counts = {name: int(np.sum(states == s)) for name, s in
+        states, looked, out = classify_level(
+            views, origin, size, ijk, blocks, extent, tolerance, distort,
+            lambda v, *boxes: v.classify_boxes(*boxes, colours))
+        counts = {name: int(sum(np.sum(o[0] == s) for o in out)) for name, s in
                   (("background", BACKGROUND), ("edge", EDGE), ("foreground", FOREGROUND))}
-        all_n = np.stack([o[4] for o in out])
-        tests += states.size
+        all_n = _scatter(len(ijk), looked, [o[4] for o in out])
+        tests += sum(len(i) for i in looked)
         samples += int(all_n.sum())
         keep, split = _decide(states, tolerance, level == max_depth, views, lo + 0.5 * size)
         if colours and np.any(keep):
-            kept_col.append(_colours(states[:, keep], np.stack([o[1][keep] for o in out]),
-                                     np.stack([o[2][keep] for o in out]),
-                                     np.stack([o[3][keep] for o in out]), all_n[:, keep]))
+            # a kept voxel was alive in every camera, so every camera looked at it
+            fg_sum, fg_n, all_sum = (_scatter(len(ijk), looked, [o[i] for o in out])
+                                     for i in (1, 2, 3))
+            kept_col.append(_colours(states[:, keep], fg_sum[:, keep], fg_n[:, keep],
+                                     all_sum[:, keep], all_n[:, keep]))
         kept_ijk.append(ijk[keep])
         kept_lv.append(np.full(int(keep.sum()), level, np.int64))
         levels.append({"voxels": len(ijk), "kept": int(keep.sum()), "split": int(split.sum()),
