@@ -125,6 +125,29 @@ def test_multiview_round_trip(tmp_path):
         ds.depth(0, 1)
 
 
+def test_prefetched_frames_are_the_frames(tmp_path):
+    """Images read ahead in the background are the images; a file broken after the read was
+    started is still an error naming it when the frame is taken; out of range is ignored."""
+    rng = np.random.default_rng(4)
+    imgs = make_multiview(tmp_path / "mv", rng, n=4)
+    ds = Dataset.open(tmp_path / "mv")
+    ds.prefetch(99)  # out of range: nothing to do
+    for f in range(4):
+        ds.prefetch(f, masks=True)
+        stream = ds._stream(ds.cameras[0])
+        assert f in stream._ahead
+        for k in range(2):
+            np.testing.assert_array_equal(ds.colour(f, k), imgs[f, k])
+            np.testing.assert_array_equal(ds.mask(f, k), imgs[f, k, :, :, 0] > 128)
+        assert f not in stream._ahead  # taken, not held
+    bad = tmp_path / "mv" / "cam1" / "000002.png"
+    bad.write_bytes(b"not a png")
+    ds.prefetch(2)
+    with pytest.raises(ValueError, match="000002.png: not a readable image"):
+        ds.colour(2, 1)
+    np.testing.assert_array_equal(ds.colour(2, 0), imgs[2, 0])
+
+
 def test_video_camera_sequential_and_backwards(tmp_path):
     rng = np.random.default_rng(2)
     make_multiview(tmp_path / "mv", rng, n=6)
