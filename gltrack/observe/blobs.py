@@ -467,6 +467,7 @@ def fit_blobs_from(points, inits: Blobs, *, point_weights=None, iterations: int 
     # room coordinates
     c = X.mean(axis=0)
     phi = _quadratic_features(X - c)  # (10, M)
+    phi_w = (phi * w).T  # (M, 10): the M step's sums weigh every point by its volume
     mean = inits.means.astype(np.float64) - c
     cov = inits.covs.astype(np.float64) + np.eye(3) * reg
     pi = np.maximum(inits.weights.astype(np.float64), 1e-12)
@@ -483,21 +484,21 @@ def fit_blobs_from(points, inits: Blobs, *, point_weights=None, iterations: int 
         lp = _log_gauss_coefficients(mean, cov, np.log(pi)) @ phi + col_lp  # (K, P, M)
         # log-sum-exp over the blobs and the responsibilities from one exponential (the
         # exponentials are most of an iteration)
+        if hard and it < iterations:
+            r = np.zeros_like(lp)
+            np.put_along_axis(r, np.argmax(lp, axis=1)[:, None], 1.0, axis=1)
         top = np.max(lp, axis=1, keepdims=True)
         top = np.where(np.isfinite(top), top, 0.0)
-        e = np.exp(lp - top)
+        e = np.exp(np.subtract(lp, top, out=lp), out=lp)
         total = np.sum(e, axis=1, keepdims=True)  # (K, 1, M)
         with np.errstate(divide="ignore"):
             ll = (np.log(total) + top)[:, 0] @ w
         if it == iterations:
             break
-        if hard:
-            r = np.zeros_like(lp)
-            np.put_along_axis(r, np.argmax(lp, axis=1)[:, None], 1.0, axis=1)
-        else:
+        if not hard:
             with np.errstate(invalid="ignore", divide="ignore"):
                 r = np.divide(e, total, out=e)
-        S = (r * w) @ phi.T  # (K, P, 10): weighted second moments, sums and counts
+        S = r @ phi_w  # (K, P, 10): weighted second moments, sums and counts
         nk = S[..., 9]
         ok = nk > min_support
         safe = np.maximum(nk, 1e-300)[..., None]
