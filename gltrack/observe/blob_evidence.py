@@ -11,13 +11,15 @@ model only:
    against a YUV background model learnt from the dataset's empty-scene frames
    (:func:`gltrack.observe.colour_carve.carve_colour`, ``segmentation = "colour"``);
 2. **blob fit** - EM of the body-part Gaussian mixture onto the voxels from a few predicted
-   poses; the most likely fit is the frame's image evidence (:meth:`BlobEvidence.fit`), its
-   likelihood a failure signal;
+   poses, all at once (:func:`gltrack.observe.blobs.fit_blobs_from`); the most likely fit is
+   the frame's image evidence (:meth:`BlobEvidence.fit`), its likelihood a failure signal;
 3. **evaluation** - each particle's part blobs against the evidence by the closed-form KL
    divergence of eq. 9 (:meth:`BlobEvidence.costs`), vectorised over particles.
 
 Every stage's wall time is accumulated in :attr:`BlobEvidence.seconds` (reset per frame by
-:meth:`BlobEvidence.set_frame`), so the trackers report where time goes.
+:meth:`BlobEvidence.set_frame`), so the trackers report where time goes. While a frame is
+carved and tracked, the next frame's images and masks are read in a background thread
+(:meth:`gltrack.data.dataset.Dataset.prefetch`).
 """
 from __future__ import annotations
 

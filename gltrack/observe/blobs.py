@@ -4,7 +4,8 @@
   :mod:`gltrack.body.mesh`): the first two moments of the part's *solid* volume, posed by the
   mesh's own linear blend skinning.
 * :func:`fit_blobs` summarises reconstructed voxels by EM on a mixture initialised from the
-  blobs of a predicted pose, so fitted blob ``i`` stays the observation of part ``i``.
+  blobs of a predicted pose, so fitted blob ``i`` stays the observation of part ``i``;
+  :func:`fit_blobs_from` runs it from several starts at once.
 * :func:`mixture_kl` is the paper's fast evaluation, eq. 9: with the correspondence ``i <-> i``
   kept, ``D(F||G) ~ sum_i a_i (KL(f_i||g_i) + ln(a_i / b_i))`` with the closed-form KL between
   Gaussians (:func:`gaussian_kl`).

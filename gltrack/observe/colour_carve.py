@@ -53,7 +53,7 @@ from scipy.stats import chi2
 
 from gltrack.observe.background import YuvBackground, check_bgr
 from gltrack.observe.voxels import (BACKGROUND, EDGE, FOREGROUND, Voxels, _decide, _first_block,
-                                    _grid, _octants, centre_pixels, classify_level, pixel_boxes)
+                                    _grid, _octants, centre_pixels, classify_level)
 
 log = logging.getLogger(__name__)
 
@@ -124,9 +124,10 @@ class _ColourView:
         self.cam, self.distort, self.t1, self.poly = camera, distort, t1, poly
         self.dm = background.distance(self.img)
 
-    def classify(self, lo, size, colours: bool = True):
-        """Classify voxels with world corner ``lo`` (M, 3) and edge ``size`` (M,); without
-        ``colours`` the three colour sums are None.
+    def classify_boxes(self, front, lo_px, hi_px, colours: bool = True):
+        """Classify voxels from their pixel boxes (``front``, ``lo_px``, ``hi_px`` of
+        :func:`gltrack.observe.voxels.pixel_boxes`, M of them); without ``colours`` the three
+        colour sums are None.
 
         Returns
         -------
@@ -136,10 +137,6 @@ class _ColourView:
         all_sum : (M, 3) float64, BGR sum of all samples
         all_n : (M,) int64, samples drawn (``k``; 0 for an unseen voxel)
         """
-        return self.classify_boxes(*pixel_boxes(self.cam, lo, size, self.distort), colours)
-
-    def classify_boxes(self, front, lo_px, hi_px, colours: bool = True):
-        """:meth:`classify` from the voxels' pixel boxes (:func:`pixel_boxes`)."""
         M = len(front)
         W, H = self.cam.width, self.cam.height
         c0, c1 = np.clip(lo_px[:, 0], 0, W), np.clip(hi_px[:, 0], 0, W)
@@ -232,11 +229,13 @@ def carve_colour(cameras, images, backgrounds, bounds, *, base: int = 16, max_de
 
     Returns
     -------
-    Voxels with ``colour`` (M, 3) float32 BGR 0..255 (None with ``colours=False``). ``carve_colour.last_stats`` holds
-    ``classifications`` (voxel-camera tests), ``samples`` (pixel samples drawn),
-    ``levels`` (per level: voxels, kept, split, and camera states counted as background / edge /
-    foreground), ``k_max`` and ``threshold_max_rel_error`` (polynomial vs chi2.ppf) and
-    ``seconds``.
+    Voxels with ``colour`` (M, 3) float32 BGR 0..255 (None with ``colours=False``).
+    ``carve_colour.last_stats`` holds ``classifications`` (voxel-camera tests made: a camera
+    skips the voxels the cameras before it dropped, see
+    :func:`gltrack.observe.voxels.classify_level`), ``samples`` (pixel samples drawn),
+    ``levels`` (per level: voxels, kept, split, and the states those tests gave, counted as
+    background / edge / foreground), ``k_max`` and ``threshold_max_rel_error`` (polynomial vs
+    chi2.ppf) and ``seconds``.
     """
     t_start = time.perf_counter()
     cameras, images, backgrounds = list(cameras), list(images), list(backgrounds)

@@ -11,6 +11,9 @@ eight projected corners (a summed-area table makes that one look-up per voxel an
 A voxel is discarded when more than ``tolerance`` cameras say background, kept whole when the
 others all say foreground, and split into its eight octants otherwise, down to ``max_depth``.
 At the finest level an edge camera is resolved by the mask pixel under the voxel centre.
+The cameras classify in turn, each only the voxels the ones before it left alive
+(:func:`classify_level`), and the corners a level's voxels share are projected once
+(:func:`block_boxes`); both leave the result as it would be without them.
 
 The box of an octant lies inside its parent's box (a pinhole projection maps the convex cube onto
 the convex hull of its corners), so an octant is never classified "more foreground" than its
