@@ -410,6 +410,13 @@ def fit_blobs(points, init: Blobs, *, point_weights=None, iterations: int = 5,
     return fitted[0], float(ll[0])
 
 
+#: Log-densities more than this far (nats) below a point's most likely blob are raised to it
+#: before they are exponentiated: exp(-50) = 2e-22 vanishes beside the 1 of the most likely
+#: blob in a float64 sum, while far points' exponentials would otherwise fall into the
+#: subnormal range (exp(-708) and below), which the CPU computes many times slower.
+LOG_FLOOR = -50.0
+
+
 def _quadratic_features(X) -> np.ndarray:
     """(10, M) features ``(x^2, y^2, z^2, xy, xz, yz, x, y, z, 1)`` of points X (M, 3): every
     Gaussian's quadratic form over the points is one dot product with them."""
@@ -490,7 +497,7 @@ def fit_blobs_from(points, inits: Blobs, *, point_weights=None, iterations: int 
             np.put_along_axis(r, np.argmax(lp, axis=1)[:, None], 1.0, axis=1)
         top = np.max(lp, axis=1, keepdims=True)
         top = np.where(np.isfinite(top), top, 0.0)
-        e = np.exp(np.subtract(lp, top, out=lp), out=lp)
+        e = np.exp(np.maximum(np.subtract(lp, top, out=lp), LOG_FLOOR, out=lp), out=lp)
         total = np.sum(e, axis=1, keepdims=True)  # (K, 1, M)
         with np.errstate(divide="ignore"):
             ll = (np.log(total) + top)[:, 0] @ w
