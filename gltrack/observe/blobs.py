@@ -490,11 +490,11 @@ def fit_blobs_from(points, inits: Blobs, *, point_weights=None, iterations: int 
     ll = np.full(K, -np.inf)
     for it in range(int(iterations) + 1):
         lp = _log_gauss_coefficients(mean, cov, np.log(pi)) @ phi + col_lp  # (K, P, M)
-        # log-sum-exp over the blobs and the responsibilities from one exponential (the
-        # exponentials are most of an iteration)
-        if hard and it < iterations:
+        if hard and it < iterations:  # before lp is overwritten below
             r = np.zeros_like(lp)
             np.put_along_axis(r, np.argmax(lp, axis=1)[:, None], 1.0, axis=1)
+        # the log-sum-exp over the blobs and the responsibilities from one exponential, in
+        # place (the exponentials are most of an iteration)
         top = np.max(lp, axis=1, keepdims=True)
         top = np.where(np.isfinite(top), top, 0.0)
         e = np.exp(np.maximum(np.subtract(lp, top, out=lp), LOG_FLOOR, out=lp), out=lp)
