@@ -126,8 +126,8 @@ def test_multiview_round_trip(tmp_path):
 
 
 def test_prefetched_frames_are_the_frames(tmp_path):
-    """Images read ahead in the background are the images; a file broken after the read was
-    started is still an error naming it when the frame is taken; out of range is ignored."""
+    """Images read ahead in the background are the images; a broken file read ahead is still
+    an error naming it when the frame is taken; out of range is ignored."""
     rng = np.random.default_rng(4)
     imgs = make_multiview(tmp_path / "mv", rng, n=4)
     ds = Dataset.open(tmp_path / "mv")

@@ -148,7 +148,8 @@ class _ColourView:
         k = np.where(area > 0, np.maximum(np.rint(np.sqrt(area)), 1), 0).astype(np.int64)
 
         vox = np.repeat(np.arange(M), k)
-        j = np.arange(len(vox)) - np.repeat(np.cumsum(k) - k, k)
+        start = np.cumsum(k) - k  # each voxel's first sample
+        j = np.arange(len(vox)) - np.repeat(start, k)
         # sample j of every voxel sits at the same fractions of its box: look them up
         fx, fy = _r2_fractions(int(k.max()) if M else 0)
         px = np.repeat(c0, k) + (fx[j] * np.repeat(w, k)).astype(np.int64)
@@ -157,7 +158,7 @@ class _ColourView:
         fg = d > self.t1
         # per-voxel sums over the voxels' consecutive runs of samples (4x bincount's speed)
         seen = k > 0
-        first = (np.cumsum(k) - k)[seen]
+        first = start[seen]
         total = np.zeros(M)
         fg_n = np.zeros(M, np.int64)
         if len(first):
