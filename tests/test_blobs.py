@@ -7,7 +7,7 @@ from gltrack.bench.vlmm import render_masks
 from gltrack.body.mesh import BodyMesh
 from gltrack.body.model import BodyModel
 from gltrack.observe.blobs import (BlobModel, Blobs, PartColours, fit_blobs, fit_blobs_from,
-                                   gaussian_kl, mixture_kl, mixture_loglik)
+                                   gaussian_kl, kl_translation, mixture_kl, mixture_loglik)
 from gltrack.observe.voxels import carve
 
 
@@ -105,6 +105,33 @@ def test_kl_zero_for_identical_and_grows_with_perturbation(body):
     means = [mixture_kl(bm.blobs(body.skinning(x + s * z * sig)), ref).mean()
              for s in (0.5, 1, 2, 4)]
     assert np.all(np.diff(means) > 0) and means[0] > 0
+
+
+def test_kl_translation_is_the_numerical_minimum(body):
+    """The closed-form root translation against a numerical minimiser of eq. 9 (scipy's BFGS
+    on the KL of the shifted blobs), for posed bodies against evidence from other poses."""
+    from scipy.optimize import minimize
+    bm = BlobModel(body.mesh, body.skeleton)
+    rng = np.random.default_rng(3)
+    x = _pose(body)
+    sig = body.dofs.sigma_at(30.0)
+    P = x + 3 * sig * rng.standard_normal((4, body.dofs.size))
+    model = bm.blobs(body.skinning(P))
+    obs = bm.blobs(body.skinning((x + 3 * sig * rng.standard_normal(body.dofs.size))[None]))[0]
+    obs = Blobs(obs.means + np.array([0.12, -0.05, 0.3]), obs.covs, obs.weights)
+    t = kl_translation(model, obs)
+    assert t.shape == (4, 3)
+    for i in range(4):
+        def kl(s, i=i):
+            return mixture_kl(Blobs(model.means[i] + s, model.covs[i], model.weights[i])[None],
+                              obs)[0]
+        best = minimize(kl, np.zeros(3), method="BFGS", options={"gtol": 1e-10})
+        assert np.allclose(t[i], best.x, atol=1e-5), (t[i], best.x)
+        assert kl(t[i]) <= kl(np.zeros(3)) and kl(t[i]) < kl(t[i] + 0.01)
+    # the evidence moved by v: every candidate's translation moves by v
+    v = np.array([-0.2, 0.1, 0.05])
+    moved = Blobs(obs.means + v, obs.covs, obs.weights)
+    assert np.allclose(kl_translation(model, moved), t + v, atol=1e-12)
 
 
 def test_fit_to_voxels_of_the_rendered_body(body):

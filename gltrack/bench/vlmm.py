@@ -114,7 +114,14 @@ PROTOCOL1 = {
             ("vlmm_200x5", "vlmm", {"particles": 200, "layers": 5}),
             ("condensation_5000", "condensation", {"particles": 5000}),
             ("apf_1000x5", "apf-blobs", {"particles": 1000, "layers": 5}),
-            ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5})],
+            ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5}),
+            # the three filters with the closed-form root translation (option root_align, off
+            # by default: the paper's filters sample it like any other DOF)
+            ("vlmm_200_align", "vlmm", {"particles": 200, "root_align": True}),
+            ("condensation_5000_align", "condensation",
+             {"particles": 5000, "root_align": True}),
+            ("apf_1000x5_align", "apf-blobs",
+             {"particles": 1000, "layers": 5, "root_align": True})],
     True: [("vlmm_200", "vlmm", {"particles": 200}),
            ("condensation_1000", "condensation", {"particles": 1000}),
            ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5})],
@@ -129,6 +136,8 @@ PROTOCOL2 = {
             ("vlmm_200", "vlmm", {"particles": 200}),
             # the clusters' diagonal covariances for the local dynamics (the default before)
             ("vlmm_1000_diag", "vlmm", {"particles": 1000, "local": "diag"}),
+            # with the closed-form root translation (option root_align)
+            ("vlmm_1000_align", "vlmm", {"particles": 1000, "root_align": True}),
             # annealing after the prediction, at the diffusion baselines' 5000 evaluations
             ("vlmm_1000x5", "vlmm", {"particles": 1000, "layers": 5}),
             ("condensation_5000", "condensation", {"particles": 5000}),

@@ -29,8 +29,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .blobs import (BlobModel, bgr_to_yuv, fit_blobs, fit_blobs_from, mixture_kl, mixture_loglik,
-                    part_colours, place_on_centroid)
+from .blobs import (BlobModel, Blobs, bgr_to_yuv, fit_blobs, fit_blobs_from, kl_translation,
+                    mixture_kl, mixture_loglik, part_colours, place_on_centroid)
 from .voxels import carve, point_colours
 
 log = logging.getLogger(__name__)
@@ -277,13 +277,21 @@ class BlobEvidence:
         self.part_colour = new if self.part_colour is None or rate >= 1 else \
             self.part_colour.blend(new, rate)
 
-    def costs(self, params) -> np.ndarray:
-        """(N,) KL divergence (nats) of N poses' blobs from the fitted evidence (eq. 9)."""
+    def costs(self, params, align_root: bool = False) -> np.ndarray:
+        """(N,) KL divergence (nats) of N poses' blobs from the fitted evidence (eq. 9).
+
+        With ``align_root`` the root translation of each pose (``params[:, :3]``, changed in
+        place) first moves to where its KL is least (:func:`kl_translation`)."""
         if self.observed is None:
             raise ValueError(f"frame {self.frame}: no blob evidence fitted (empty "
                              "reconstruction?)")
         with self._timed("evaluation"):
-            return mixture_kl(self.blobs(params), self.observed)
+            b = self.blobs(params)
+            if align_root:
+                t = kl_translation(b, self.observed)
+                params[:, :3] += t
+                b = Blobs(b.means + t[:, None, :], b.covs, b.weights)
+            return mixture_kl(b, self.observed)
 
 
 class ColourAcquisition:

@@ -264,6 +264,34 @@ def _logdet(S):
     return np.log(np.maximum(det, 1e-300))
 
 
+def kl_translation(model: Blobs, observed: Blobs) -> np.ndarray:
+    """(N, 3) translation of each candidate's blobs that minimises :func:`mixture_kl`.
+
+    Moving every blob of a candidate by ``t`` changes only the Mahalanobis terms of eq. 9, so
+    the KL is quadratic in ``t``: ``sum_i a_i / 2 (d_i - t)^T S_i^-1 (d_i - t)`` with
+    ``d_i = mu_g,i - mu_f,i`` and ``S_i`` the observed blob's covariance, least at
+    ``t = (sum_i a_i S_i^-1)^-1 sum_i a_i S_i^-1 d_i``.
+
+    Parameters
+    ----------
+    model : Blobs (N, P) of N candidate poses (``F``)
+    observed : Blobs (P,) fitted to the observation (``G``)
+
+    Returns
+    -------
+    (N, 3) float64, metres
+    """
+    inv_g = np.linalg.inv(np.asarray(observed.covs, np.float64))   # (P, 3, 3) S_i^-1
+    a = np.asarray(model.weights, np.float64)                      # (N, P)
+    n, p = a.shape
+    # both sums as (N, P) x (P, ...) matrix products: einsum over the small axes is 5x slower
+    H = (a @ inv_g.reshape(p, 9)).reshape(n, 3, 3)
+    g = (a @ np.einsum("pij,pj->pi", inv_g, observed.means)
+         - (a[..., None] * model.means).reshape(n, 3 * p)
+         @ np.swapaxes(inv_g, -1, -2).reshape(3 * p, 3))
+    return np.linalg.solve(H, g[..., None])[..., 0]
+
+
 def mixture_kl(model: Blobs, observed: Blobs) -> np.ndarray:
     """Eq. 9: ``sum_i a_i (KL(f_i || g_i) + ln(a_i / b_i))`` with blob i <-> blob i.
 

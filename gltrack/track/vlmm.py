@@ -192,14 +192,16 @@ class VlmmTracker(Tracker):
             self.silhouette.observe(frame)
 
     # -- evaluation ---------------------------------------------------------------------------
-    def costs(self, frame, params) -> np.ndarray:
-        """(N,) cost of N poses against frame ``frame`` (lower is better)."""
+    def costs(self, frame, params, align_root: bool = False) -> np.ndarray:
+        """(N,) cost of N poses against frame ``frame`` (lower is better); ``align_root``
+        moves the poses' root translations (in place) to their least KL first (the blob
+        evaluation only, see :meth:`BlobEvidence.costs`)."""
         self._load(frame)
         if self.silhouette is not None:
             return self.silhouette.scores(params)[0]
         if self.evidence.observed is None:
             self.evidence.fit(np.atleast_2d(params)[:1])
-        return self.evidence.costs(params)
+        return self.evidence.costs(params, align_root=align_root)
 
     def quality(self, best_cost: float) -> float:
         """The frame's fit figure compared with ``lost_threshold`` (lower is better)."""
@@ -317,7 +319,7 @@ class VlmmTracker(Tracker):
                 # one blob fit a frame, from the predicted particles (the first call): the
                 # annealing layers that follow weigh against the same evidence
                 self._fit_from_clusters(P)
-            costs.append(self.costs(frame, P))
+            costs.append(self.costs(frame, P, align_root=self.opt.root_align))
             return cost_weights(costs[-1])
 
         res = self.sampler.step(self.P, weigh, self.rng, predict_fn=self.prior.predict)
