@@ -135,16 +135,19 @@ def test_prior_rejects_a_model_of_other_dofs(setup):
 
 @pytest.mark.parametrize("evaluation", ["silhouette", "blobs"])
 def test_recovery_from_a_lost_start(setup, ctx, evaluation):
-    """Started far from the subject, the tracker detects it is lost and re-initialises from
-    all clusters at the voxel centroid; without recovery it stays lost. With the blob
-    evaluation (bench vlmm's) the failure only shows when the blob fit also starts from
-    prototypes on the voxels (``fit_prototypes``): fitted from the lost particles alone, the
-    evidence follows them a metre off and their KL stays low."""
+    """Started far from the subject and turned (1.5 rad, as bench vlmm's injected failure),
+    the tracker detects it is lost and re-initialises from all clusters at the voxel centroid;
+    without recovery it stays lost. With the blob evaluation (bench vlmm's) the failure only
+    shows when the blob fit also starts from prototypes on the voxels (``fit_prototypes``):
+    fitted from the lost particles alone, the evidence follows them a metre off and their KL
+    stays low. (A start that is only shifted is no failure with the blobs: ``root_align``
+    moves it onto the evidence, see the next test.)"""
     root, body, _, test = setup
     ds = Dataset.open(root / "ds")
     wrong = test[0].copy()
     wrong[0] += 1.0
     wrong[2] -= 0.8
+    wrong[3] += 1.5  # pelvis_ry: the heading
     gt = body.joints(test)
     res = {}
     for frames in (2, 0):
@@ -163,6 +166,30 @@ def test_recovery_from_a_lost_start(setup, ctx, evaluation):
             assert any(e.info.get("recovered") for e in ests)
             assert max(e.evaluations for e in ests) > 60
     assert res[2] < 0.15 < res[0], res
+
+
+def test_root_alignment_absorbs_a_shifted_start(setup):
+    """A start only shifted (a metre across, 0.8 m along) with the pose right: with
+    ``root_align`` (the default) every particle's root moves onto the blob evidence, so the
+    tracker is on the subject within two frames with no recovery; sampling the translation
+    like any other DOF (``root_align = false``, the paper's filters) it stays lost."""
+    root, body, _, test = setup
+    wrong = test[0].copy()
+    wrong[0] += 1.0
+    wrong[2] -= 0.8
+    gt = body.joints(test)
+    err = {}
+    with Dataset.open(root / "ds") as ds:
+        for align in (True, False):
+            opt = tv.VlmmOptions(model=str(root / "model.npz"), particles=60, lost_frames=0,
+                                 max_depth=2, fit_prototypes=3, root_align=align)
+            assert tv.VlmmOptions(model="m.npz").root_align
+            tr = tv.VlmmTracker(ds, body, None, opt, np.random.default_rng(1))
+            tr.start(0, wrong)
+            ests = [tr.step(f) for f in range(5)]
+            err[align] = np.linalg.norm(body.joints(np.stack([e.params for e in ests[2:]]))
+                                        - gt[2:5], axis=2).mean()
+    assert err[True] < 0.05 and err[False] > 0.5, err
 
 
 def test_fit_from_prototypes_escapes_wrong_predictions(setup):
@@ -193,7 +220,9 @@ def test_fit_from_prototypes_escapes_wrong_predictions(setup):
 def test_blob_evidence_follows_lost_particles_without_prototypes(setup):
     """The drift's mechanism: fitted only from particles a metre off, the blob evidence stays
     with them (the true pose scores hundreds of nats, the lost set a few); the prototypes on
-    the voxels put the evidence back on the body and the lost set's KL flags the failure."""
+    the voxels put the evidence back on the body and the lost set's KL flags the failure.
+    The root translation is sampled here (``root_align = false``): aligned, a set that is
+    only shifted moves onto the evidence and is not lost at all."""
     root, body, _, test = setup
     wrong = test[0].copy()
     wrong[0] += 1.0
@@ -203,7 +232,7 @@ def test_blob_evidence_follows_lost_particles_without_prototypes(setup):
         for n in (0, 3):
             tr = tv.VlmmTracker(ds, body, None, tv.VlmmOptions(
                 model=str(root / "model.npz"), particles=40, max_depth=2, headings=8,
-                fit_prototypes=n, lost_frames=0), np.random.default_rng(1))
+                fit_prototypes=n, lost_frames=0, root_align=False), np.random.default_rng(1))
             tr.start(0, wrong)
             e = tr.step(0)
             kl[n] = (e.info["quality"], float(tr.evidence.costs(test[:1])[0]))

@@ -115,13 +115,13 @@ PROTOCOL1 = {
             ("condensation_5000", "condensation", {"particles": 5000}),
             ("apf_1000x5", "apf-blobs", {"particles": 1000, "layers": 5}),
             ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5}),
-            # the three filters with the closed-form root translation (option root_align, off
-            # by default: the paper's filters sample it like any other DOF)
-            ("vlmm_200_align", "vlmm", {"particles": 200, "root_align": True}),
-            ("condensation_5000_align", "condensation",
-             {"particles": 5000, "root_align": True}),
-            ("apf_1000x5_align", "apf-blobs",
-             {"particles": 1000, "layers": 5, "root_align": True})],
+            # the three filters sampling the root translation like any other DOF (the
+            # paper's; root_align, on by default, puts it at its least KL in closed form)
+            ("vlmm_200_sampled_root", "vlmm", {"particles": 200, "root_align": False}),
+            ("condensation_5000_sampled_root", "condensation",
+             {"particles": 5000, "root_align": False}),
+            ("apf_1000x5_sampled_root", "apf-blobs",
+             {"particles": 1000, "layers": 5, "root_align": False})],
     True: [("vlmm_200", "vlmm", {"particles": 200}),
            ("condensation_1000", "condensation", {"particles": 1000}),
            ("apf_200x5", "apf-blobs", {"particles": 200, "layers": 5})],
@@ -136,8 +136,8 @@ PROTOCOL2 = {
             ("vlmm_200", "vlmm", {"particles": 200}),
             # the clusters' diagonal covariances for the local dynamics (the default before)
             ("vlmm_1000_diag", "vlmm", {"particles": 1000, "local": "diag"}),
-            # with the closed-form root translation (option root_align)
-            ("vlmm_1000_align", "vlmm", {"particles": 1000, "root_align": True}),
+            # the root translation sampled (the paper's), not solved for (root_align)
+            ("vlmm_1000_sampled_root", "vlmm", {"particles": 1000, "root_align": False}),
             # annealing after the prediction, at the diffusion baselines' 5000 evaluations
             ("vlmm_1000x5", "vlmm", {"particles": 1000, "layers": 5}),
             ("condensation_5000", "condensation", {"particles": 5000}),

@@ -58,10 +58,10 @@ class BlobEvidenceOptions(Options):
         KL is least (closed form, :func:`~gltrack.observe.blobs.kl_translation`): the filter
         then searches the pose, not where the body is, which the fitted blobs already say
         (cmu_60_10, protocol 1: vlmm 200 78.6 -> 59.8 mm, condensation 5000 75.3 -> 55.4,
-        apf 1000 x 5 29.5 -> 23.1; protocol 2: vlmm 1000 85.2 -> 70.3). Off by default (the
-        paper's filters, which sample the translation like any other DOF): with it a set that
-        is lost but only shifted aligns onto the evidence, and the vlmm test of recovery from a
-        lost start no longer sees the loss; the loss test has to change before it can be on
+        apf 1000 x 5 29.5 -> 23.1; protocol 2: vlmm 1000 85.2 -> 70.3; cmu_60_13 alike).
+        On by default; ``false`` is the paper's filters, which sample the translation like any
+        other DOF. A set that is only shifted is then no failure (it moves onto the
+        evidence); a turned one still is, and the vlmm tracker's recovery catches it
     """
 
     volume: list = field(default_factory=list)
@@ -73,7 +73,7 @@ class BlobEvidenceOptions(Options):
     colour: bool = True
     colour_frames: int = 5
     fit_from: str = "predictions"
-    root_align: bool = False
+    root_align: bool = True
 
     def problems(self):
         bad = super().problems() + [*choice(self, "segmentation", SEGMENTATIONS),
