@@ -50,6 +50,42 @@ def test_targets_and_tables():
     assert vlmm_line.split()[4] == "0.28"
     res["recovery"]["vlmm_1000"]["frames_to_recover"] = None
     assert _vlmm_targets(res, quick=False)["recovery_within_30"] is False
+    assert t["honest_vlmm_rms_m"] is None and t["honest_wrong_start_within_15"] is None
+    assert "honest protocol" not in text
+
+
+def test_honest_protocol_targets_and_table():
+    """The honest section (MakeHuman subject, estimated body, automatic start): its VLMM row
+    is checked against the 100 mm target, the wrong start against 15 frames, and both print."""
+    body_error = {"mean_bone_mm": 31.0, "max_bone_mm": 60.0, "worst_bone": "l_forearm",
+                  "height_mm": -12.0}
+    honest = {"subject": "meshes/m.glb",
+              "runs": {"vlmm_1000": dict(_summary([_row("vlmm", 0.12, 0, fps=9.0)]),
+                                         body_error=body_error),
+                       "condensation_5000": dict(_summary([_row("condensation", 0.3, 0)]),
+                                                 body_error=None)},
+              "wrong_start": {"run": "vlmm_1000", "turned_rad": 1.5707963, "threshold_m": 0.1,
+                              "frames_to_recover": 4, "rms_joint_error_m": 0.12}}
+    res = {"machine": "m", "clip": "c.bvh", "train_takes": ["a"], "fps": 30.0,
+           "train_frames": 100, "test_frames": 20, "test_first_frame": 0,
+           "test_take_frames": 50, "seeds": 1, "learn_seconds": 1.0,
+           "model": {"n_clusters": 9, "n_states": 45, "train_entropy": 1.0,
+                     "heldout_entropy": 1.2},
+           "entropy_vs_memory": [], "protocol1": {}, "protocol2": {}, "recovery": {},
+           "honest": honest}
+    t = res["targets"] = _vlmm_targets(res, quick=False)
+    assert t["honest_vlmm_rms_m"] == 0.12 and t["honest_vlmm_rms_met"] is False
+    assert t["honest_wrong_start_frames"] == 4 and t["honest_wrong_start_within_15"] is True
+    text = format_table(res)
+    assert "honest protocol, the whole system on a subject drawn with meshes/m.glb" in text
+    assert "turned 90 deg): under 100 mm after 4 frames" in text
+    assert "honest vlmm RMS <= 100 mm: False (120 mm)" in text
+    assert "vlmm_1000: body estimate" in text and "condensation_5000: body" not in text
+    honest["wrong_start"]["frames_to_recover"] = 20
+    assert _vlmm_targets(res, quick=False)["honest_wrong_start_within_15"] is False
+    honest["wrong_start"]["frames_to_recover"] = None
+    assert _vlmm_targets(res, quick=False)["honest_wrong_start_within_15"] is False
+    assert "never under 100 mm" in format_table(res)
 
 
 def test_test_take_swaps_with_the_default_clip(tmp_path):

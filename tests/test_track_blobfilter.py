@@ -223,5 +223,5 @@ def test_root_alignment_moves_poses_onto_the_evidence(setup):
         # all three end where the unshifted pose ends (the fit's own offset from the truth)
         np.testing.assert_allclose(aligned[:, :3], aligned[2:, :3].repeat(3, 0), atol=1e-6)
         assert np.linalg.norm(aligned[2, :3] - test[5, :3]) < 0.03
-        # the option is on by default (false: the paper's filters, the translation sampled)
-        assert CondensationOptions().root_align and ApfBlobsOptions().root_align
+        # the option is off by default (the paper's filters; aligned, a lost set looks found)
+        assert not CondensationOptions().root_align and not ApfBlobsOptions().root_align

@@ -135,13 +135,13 @@ def test_prior_rejects_a_model_of_other_dofs(setup):
 
 @pytest.mark.parametrize("evaluation", ["silhouette", "blobs"])
 def test_recovery_from_a_lost_start(setup, ctx, evaluation):
-    """Started far from the subject and turned (1.5 rad, as bench vlmm's injected failure),
+    """Started far from the subject and turned (1.5 rad and a metre and more off),
     the tracker detects it is lost and re-initialises from all clusters at the voxel centroid;
     without recovery it stays lost. With the blob evaluation (bench vlmm's) the failure only
     shows when the blob fit also starts from prototypes on the voxels (``fit_prototypes``):
     fitted from the lost particles alone, the evidence follows them a metre off and their KL
-    stays low. (A start that is only shifted is no failure with the blobs: ``root_align``
-    moves it onto the evidence, see the next test.)"""
+    stays low. (A start that is only shifted is no failure to a tracker with ``root_align``:
+    it moves onto the evidence, see the next test.)"""
     root, body, _, test = setup
     ds = Dataset.open(root / "ds")
     wrong = test[0].copy()
@@ -170,9 +170,10 @@ def test_recovery_from_a_lost_start(setup, ctx, evaluation):
 
 def test_root_alignment_absorbs_a_shifted_start(setup):
     """A start only shifted (a metre across, 0.8 m along) with the pose right: with
-    ``root_align`` (the default) every particle's root moves onto the blob evidence, so the
-    tracker is on the subject within two frames with no recovery; sampling the translation
-    like any other DOF (``root_align = false``, the paper's filters) it stays lost."""
+    ``root_align`` every particle's root moves onto the blob evidence, so the tracker is on the
+    subject within two frames with no recovery; sampling the translation like any other DOF
+    (``root_align = false``, the default: the paper's filters) it stays lost (no recovery
+    here)."""
     root, body, _, test = setup
     wrong = test[0].copy()
     wrong[0] += 1.0
@@ -183,7 +184,7 @@ def test_root_alignment_absorbs_a_shifted_start(setup):
         for align in (True, False):
             opt = tv.VlmmOptions(model=str(root / "model.npz"), particles=60, lost_frames=0,
                                  max_depth=2, fit_prototypes=3, root_align=align)
-            assert tv.VlmmOptions(model="m.npz").root_align
+            assert not tv.VlmmOptions(model="m.npz").root_align
             tr = tv.VlmmTracker(ds, body, None, opt, np.random.default_rng(1))
             tr.start(0, wrong)
             ests = [tr.step(f) for f in range(5)]
@@ -221,8 +222,8 @@ def test_blob_evidence_follows_lost_particles_without_prototypes(setup):
     """The drift's mechanism: fitted only from particles a metre off, the blob evidence stays
     with them (the true pose scores hundreds of nats, the lost set a few); the prototypes on
     the voxels put the evidence back on the body and the lost set's KL flags the failure.
-    The root translation is sampled here (``root_align = false``): aligned, a set that is
-    only shifted moves onto the evidence and is not lost at all."""
+    The root translation is sampled here (``root_align = false``, the default): aligned, a
+    set that is only shifted moves onto the evidence and is not lost at all."""
     root, body, _, test = setup
     wrong = test[0].copy()
     wrong[0] += 1.0
