@@ -172,8 +172,8 @@ FAIL_AT = 10
 #: 0.098 m and stayed there); 2.5 rad puts them 0.17 m off, a failure either way
 FAIL_RAD, FAIL_SHIFT = 2.5, 0.5
 #: a second failure, reported beside it: the set turned round (pi), the blob evidence's
-#: ambiguous twin (it fits a body facing the other way about as well), which no loss test
-#: based on the blob KL can see
+#: ambiguous twin (it fits a body facing the other way about as well); the blob KL's loss
+#: test does not see it (nor a 2.5 rad turn without the shift: docs/measurements.md)
 FAIL_TURNED_ROUND = np.pi
 RECOVERED_M = 0.1
 #: protocol 2 target (issue 16): VLMM-1000 RMS joint error over the take, metres
