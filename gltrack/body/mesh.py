@@ -274,6 +274,26 @@ def _stature(skeleton) -> float:
     return float(span / (0.88 - 0.039))
 
 
+#: The head's axis in the procedural mesh, as fractions of the head joint's tip vector
+#: (:func:`segment_tip`): the head is an ellipsoidal tube from 0.2 to 0.5 of it, capped by half
+#: the tip's length at either end (chin and crown). Its middle, :data:`HEAD_CENTRE`, is the
+#: centre of the head the mesh draws; the trackers fit it to the ears' midpoint, which lies at
+#: the head's centre seen from the side and about half way from the chin to the crown.
+HEAD_AXIS = (0.2, 0.5)
+HEAD_CENTRE = 0.5 * (HEAD_AXIS[0] + HEAD_AXIS[1])
+#: The hand's knuckles as a fraction of the wrist's tip vector: the mesh's palm ends there and
+#: the fingers' cap begins (palm length / hand length, about 0.55 in adults); the trackers fit
+#: it to the landmarks' index and little finger knuckles.
+KNUCKLES = 0.55
+
+
+def segment_tip(skeleton, name: str) -> np.ndarray:
+    """(3,) metres: the tip of joint ``name``'s end segment relative to the joint, in the rest
+    frame, as the procedural mesh draws it (``"head"``, a wrist or an ankle; the skeleton's end
+    site, or the mesh's anthropometric fallback when it has none)."""
+    return _end_vector(skeleton, skeleton.rest_positions(), name, _stature(skeleton))
+
+
 def _end_vector(skeleton, pos, name: str, H: float) -> np.ndarray:
     """Segment tip relative to joint ``name``, with anthropometric fallbacks for missing ends."""
     e = skeleton.ends[skeleton.index(name)]
@@ -397,8 +417,8 @@ def make_body_mesh(skeleton, *, lod: int = 1, girth_scale: float = 1.0,
     e_head = _end_vector(skeleton, P, "head", H)
     r_head = semi("head")
     le = np.linalg.norm(e_head)
-    segs.append(_Segment(J("head"), part("head"), pos["head"] + 0.2 * e_head,
-                         pos["head"] + 0.5 * e_head, _X, 0.85 * r_head, r_head,
+    segs.append(_Segment(J("head"), part("head"), pos["head"] + HEAD_AXIS[0] * e_head,
+                         pos["head"] + HEAD_AXIS[1] * e_head, _X, 0.85 * r_head, r_head,
                          cap0=0.5 * le, cap1=0.5 * le, large=True))
 
     for side in "lr":
@@ -426,7 +446,7 @@ def make_body_mesh(skeleton, *, lod: int = 1, girth_scale: float = 1.0,
         e_hand = _end_vector(skeleton, P, n["wrist"], H)
         r_hand = semi("hand")
         segs.append(_Segment(J(n["wrist"]), part(f"{side}_hand"), pos[n["wrist"]],
-                             pos[n["wrist"]] + 0.55 * e_hand, _Z, r_hand * [0.8, 1.2], r_hand,
+                             pos[n["wrist"]] + KNUCKLES * e_hand, _Z, r_hand * [0.8, 1.2], r_hand,
                              cap0=0.5 * semi("wrist")[0],
                              cap1=0.45 * np.linalg.norm(e_hand),
                              blends=((J(n["elbow"]), pos[n["wrist"]], -1,

@@ -70,6 +70,11 @@ LANDMARKS = {"nose": 0, "l_shoulder": 11, "r_shoulder": 12, "l_elbow": 13, "r_el
 #: the joints of a gltrack body that a landmark marks (its joint centre, within a few cm)
 BODY_JOINTS = ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle", "l_shoulder",
                "r_shoulder", "l_elbow", "r_elbow", "l_wrist", "r_wrist")
+#: points of the body that are no joint, each marked by the midpoint of two landmarks (both
+#: triangulated): the ears' midpoint is the head's centre, the index and little fingers'
+#: knuckles' midpoint the hand's knuckles (:func:`site_points`). They orient what the joints
+#: alone leave free: the head on the neck, the hand on the wrist.
+SITE_LANDMARKS = {"head": (7, 8), "l_hand": (17, 19), "r_hand": (18, 20)}
 #: metres: a joint's distance to its keypoint counts up to this much
 #: (:func:`keypoint_distance`): a triangulated keypoint is 4-6 cm off on a good frame (the
 #: Pose2Sim take against hand labels), a wrong one (a limb confused with the other) is off
@@ -511,6 +516,23 @@ def detect_keypoints(cameras, images, masks=None, model=None, progress=None,
             seg[c][~confirmed[:, c]] = 0
         out["segmentation"] = seg
     return out
+
+
+def site_points(points, name: str) -> np.ndarray:
+    """The triangulated position of a body site of :data:`SITE_LANDMARKS`.
+
+    Parameters
+    ----------
+    points : (..., 33, 3) float, metres, triangulated landmarks (NaN: not triangulated)
+    name : str, a key of :data:`SITE_LANDMARKS`
+
+    Returns
+    -------
+    (..., 3) float64 metres, the midpoint of the site's two landmarks; NaN where either is
+    """
+    a, b = SITE_LANDMARKS[name]
+    points = np.asarray(points, dtype=np.float64)
+    return 0.5 * (points[..., a, :] + points[..., b, :])
 
 
 def keypoint_distance(joints, targets, cap: float = DISTANCE_CAP) -> np.ndarray:

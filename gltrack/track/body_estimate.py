@@ -312,19 +312,20 @@ class _SilhouetteFrames:
         #: metres (world y): the recorded floor, else the lowest bottom of the visual hulls
         #: measured so far
         self.floor = np.inf if self.known_floor is None else self.known_floor
-        #: the dataset's triangulated keypoints (:func:`gltrack.track.multiview.keypoint_targets`)
+        #: the dataset's triangulated keypoints (:func:`gltrack.track.keypoint_sites.keypoint_targets`)
         #: and, per added frame, its keypoints (K, 3) and foreground pixels
-        self.kp_joints, self.kp_points = None, None
+        self.kp_sites, self.kp_points = None, None
         self.kp_frames = []
         self.set_template(template_body)
 
     def set_template(self, body) -> None:
         """The template body of the search (its preset decides the keypoints' joints)."""
-        from .multiview import HpsOptions, keypoint_targets
+        from .keypoint_sites import keypoint_targets
+        from .multiview import HpsOptions
 
         self.template_body = body
         opt = HpsOptions()
-        self.kp_joints, self.kp_points = keypoint_targets(self.dataset, body, opt)
+        self.kp_sites, self.kp_points = keypoint_targets(self.dataset, body, opt)
         #: metres of mean distance that cost the whole area (the tracker's default scale)
         self.kp_scale = opt.keypoints
 
@@ -335,7 +336,7 @@ class _SilhouetteFrames:
         target, area = self.kp_frames[k]
         if target is None:
             return 0.0
-        d = keypoint_distance(kin.forward(X).positions[:, self.kp_joints], target)
+        d = keypoint_distance(self.kp_sites.positions(kin, X), target)
         if not np.isfinite(d).any():
             return 0.0
         return area * d / self.kp_scale

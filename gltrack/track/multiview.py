@@ -80,7 +80,7 @@ from gltrack.body.poses import canonical_poses
 from gltrack.motion.vlmm_prior import vlmm_prior
 from gltrack.observe.blob_evidence import default_volume
 from gltrack.observe.blobs import BlobModel, place_on_centroid
-from gltrack.observe.keypoints import BODY_JOINTS, keypoint_distance
+from gltrack.observe.keypoints import keypoint_distance
 from gltrack.observe.people import pick_person
 from gltrack.observe.model_masks import mask_covered
 from gltrack.observe.multiview import FOREGROUNDS, MultiviewObservation, SilhouetteLikelihood
@@ -94,6 +94,7 @@ from gltrack.sample.partitions import exchange_limbs, limb_pairs
 from gltrack.sample.sweep import LEGS, arm_grid, limb_grid, sweep_limbs
 
 from .base import FrameEstimate, NoPersonError, Tracker, rng_state, set_rng_state, two_modes
+from .keypoint_sites import keypoint_targets
 from .options import Options, at_least, choice, positive, within
 
 log = logging.getLogger(__name__)
@@ -132,30 +133,6 @@ def near_home(X, cost, home, max_shift: float):
                  "used", int((~near).sum()), max_shift)
         return X[near], cost[near]
     return X, cost
-
-
-def keypoint_targets(dataset, body, opt):
-    """The body joints the dataset's keypoints mark and those keypoints frame by frame.
-
-    Returns
-    -------
-    joints : list of int, indices into the body's joints (K,), or None
-    points : (F, K, 3) float64 metres (internal frame; NaN where not triangulated), or None
-        when the option is off, the dataset has no keypoints or none matches a joint
-    """
-    kp = dataset.keypoints() if opt.keypoints else None
-    if kp is None:
-        return None, None
-    tracked = [n for n in BODY_JOINTS
-               if body.dofs.preset != "upper" or n.split("_", 1)[1] not in ("knee", "ankle")]
-    pairs = [(body.skeleton.names.index(n), kp["names"].index(n)) for n in tracked
-             if n in body.skeleton.names and n in kp["names"]]
-    if not pairs:
-        log.warning("the dataset's keypoints mark none of the body's joints; not used")
-        return None, None
-    log.info("keypoints: %d joints matched with the dataset's triangulated keypoints",
-             len(pairs))
-    return [j for j, _ in pairs], kp["points"][:, [k for _, k in pairs]]
 
 
 @dataclass
@@ -292,9 +269,11 @@ class MultiviewOptions(Options):
         body keypoints (``keypoints.npz``, which ``gltrack ingest`` writes when the landmark
         model is installed; :mod:`gltrack.observe.keypoints`). Every weighting adds
         ``area * d / keypoints`` pixels to a pose's silhouette error, ``d`` the mean distance
-        of its hips, knees, ankles, shoulders, elbows and wrists to their keypoints, each
+        of its hips, knees, ankles, shoulders, elbows and wrists to their keypoints, and of
+        the head's centre and the hands' knuckles to the ears' and knuckles' midpoints where
+        the preset turns the head and wrists (:mod:`gltrack.track.keypoint_sites`), each
         capped at :data:`~gltrack.observe.keypoints.DISTANCE_CAP` (knees and ankles left out
-        with ``--dof upper``; joints without a keypoint in a frame left out). Why 0.15 m: the
+        with ``--dof upper``; points without a keypoint in a frame left out). Why 0.15 m: the
         keypoints are 4-6 cm from hand labels on a good frame, and at the right pose real
         masks still leave 0.3-0.5 of the foreground area unexplained (IoU 0.6-0.8), so one
         keypoint error (5 cm) costs about what the silhouette's own mismatch does: neither
@@ -549,9 +528,9 @@ class MultiviewTracker(Tracker):
         #: this frame's ground reference along +Y (metres; :meth:`observe_ground`), None = none
         self.ground = None
         self._volume = default_volume(self.obs.pinholes, dataset.assumed_floor())
-        #: the body joints matched with keypoints (indices) and their keypoints per frame
-        #: (F, K, 3), or None without keypoints
-        self._kp_joints, self._kp_points = keypoint_targets(dataset, self.body, self.opt)
+        #: the body's points matched with keypoints (joints and sites) and their keypoints per
+        #: frame (F, K, 3), or None without keypoints
+        self._kp_sites, self._kp_points = keypoint_targets(dataset, self.body, self.opt)
         #: this frame's keypoints (K, 3) (:meth:`observe_keypoints`), None = none
         self.kp_target = None
 
@@ -617,12 +596,12 @@ class MultiviewTracker(Tracker):
         self.kp_target = None if self._kp_points is None else self._kp_points[frame]
 
     def keypoint_distance(self, X: np.ndarray) -> np.ndarray:
-        """(N,) metres: mean capped distance of the matched joints to this frame's keypoints
+        """(N,) metres: mean capped distance of the matched joints and sites
+        (:mod:`gltrack.track.keypoint_sites`) to this frame's keypoints
         (:func:`gltrack.observe.keypoints.keypoint_distance`; NaN without keypoints)."""
         if self.kp_target is None:
             return np.full(len(X), np.nan)
-        joints = self.body.joints(X)[:, self._kp_joints]
-        return keypoint_distance(joints, self.kp_target)
+        return keypoint_distance(self._kp_sites.positions(self.body.kin, X), self.kp_target)
 
     def keypoint_cost(self, X: np.ndarray) -> np.ndarray | float:
         """(N,) silhouette-error pixels for the joints' distance to this frame's keypoints:
