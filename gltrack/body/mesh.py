@@ -282,9 +282,11 @@ def _stature(skeleton) -> float:
 HEAD_AXIS = (0.2, 0.5)
 HEAD_CENTRE = 0.5 * (HEAD_AXIS[0] + HEAD_AXIS[1])
 #: The hand's knuckles as a fraction of the wrist's tip vector: the mesh's palm ends there and
-#: the fingers' cap begins (palm length / hand length, about 0.55 in adults); the trackers fit
-#: it to the landmarks' index and little finger knuckles.
+#: the fingers' cap begins (palm length / hand length, about 0.55 in adults).
 KNUCKLES = 0.55
+#: How far the mesh's heel reaches behind the ankle, as a fraction of the foot's length from the
+#: ankle to the toe tip (heel-to-ankle about a quarter of the foot's length in adults).
+HEEL_BEHIND = 0.28
 
 
 def segment_tip(skeleton, name: str) -> np.ndarray:
@@ -483,6 +485,29 @@ def make_body_mesh(skeleton, *, lod: int = 1, girth_scale: float = 1.0,
     return mesh
 
 
+def _foot_axis(skeleton, P, ankle: str, H: float):
+    """The toe tip (3,) in the rest pose, the foot's horizontal forward direction (3,) and its
+    length from the ankle to the tip along it (metres)."""
+    a_pos = P[skeleton.index(ankle)]
+    toe = a_pos + _end_vector(skeleton, P, ankle, H)
+    fwd = toe - a_pos
+    fwd[1] = 0.0
+    length = float(np.linalg.norm(fwd))
+    if length < 0.03 * H:  # end site straight down: assume a forward-pointing foot
+        fwd, length = _Z.copy(), 0.11 * H
+    return toe, fwd / length, length
+
+
+def foot_ends(skeleton, ankle: str) -> np.ndarray:
+    """(2, 3) metres: the back of the heel and the toe tip of the procedural mesh's foot,
+    relative to joint ``ankle`` in the rest frame, both at the toe tip's height (the sole)."""
+    P = skeleton.rest_positions()
+    toe, fwd, length = _foot_axis(skeleton, P, ankle, _stature(skeleton))
+    a_pos = P[skeleton.index(ankle)]
+    heel = np.array([a_pos[0], toe[1], a_pos[2]]) - fwd * HEEL_BEHIND * length
+    return np.stack([heel - a_pos, toe - a_pos])
+
+
 def _foot_segment(skeleton, P, ankle: str, H: float, r_foot: np.ndarray, bone: int,
                   part_id: int) -> _Segment:
     """A flat, box-like foot on the floor (the toe tip's height) from behind the ankle to the toe.
@@ -491,16 +516,10 @@ def _foot_segment(skeleton, P, ankle: str, H: float, r_foot: np.ndarray, bone: i
     direction, so the sole is level whatever way the skeleton's ankle->toe vector points.
     """
     a_pos = P[skeleton.index(ankle)]
-    toe = a_pos + _end_vector(skeleton, P, ankle, H)
-    fwd = toe - a_pos
-    fwd[1] = 0.0
-    length = float(np.linalg.norm(fwd))
-    if length < 0.03 * H:  # end site straight down: assume a forward-pointing foot
-        fwd, length = _Z.copy(), 0.11 * H
-    fwd /= length
+    toe, fwd, length = _foot_axis(skeleton, P, ankle, H)
     sole = min(toe[1], a_pos[1] - 0.5 * r_foot[1])
     r_heel = r_foot * np.array([0.7, 1.3])
-    heel_c = np.array([a_pos[0], sole + r_heel[1], a_pos[2]]) - fwd * 0.28 * length
+    heel_c = np.array([a_pos[0], sole + r_heel[1], a_pos[2]]) - fwd * HEEL_BEHIND * length
     toe_c = np.array([a_pos[0], sole + r_foot[1], a_pos[2]]) + fwd * length
     d = _unit(toe_c - heel_c)
     cap0, cap1 = 0.8 * r_heel[1], 0.6 * r_foot[0]

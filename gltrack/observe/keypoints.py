@@ -70,11 +70,15 @@ LANDMARKS = {"nose": 0, "l_shoulder": 11, "r_shoulder": 12, "l_elbow": 13, "r_el
 #: the joints of a gltrack body that a landmark marks (its joint centre, within a few cm)
 BODY_JOINTS = ("l_hip", "r_hip", "l_knee", "r_knee", "l_ankle", "r_ankle", "l_shoulder",
                "r_shoulder", "l_elbow", "r_elbow", "l_wrist", "r_wrist")
-#: points of the body that are no joint, each marked by the midpoint of two landmarks (both
-#: triangulated): the ears' midpoint is the head's centre, the index and little fingers'
-#: knuckles' midpoint the hand's knuckles (:func:`site_points`). They orient what the joints
-#: alone leave free: the head on the neck, the hand on the wrist.
-SITE_LANDMARKS = {"head": (7, 8), "l_hand": (17, 19), "r_hand": (18, 20)}
+#: points of the body that are no joint, each marked by one landmark or the midpoint of two
+#: (all triangulated; :func:`site_points`): the ears' midpoint is the head's centre, then the
+#: back of each heel and each foot's toe tip. They orient what the joints alone leave free:
+#: the head on the neck, the feet on the ankles. Not the hands (the index and little finger
+#: knuckles, 17-20): on the seated caliscope take, hands before the face and on the keyboard,
+#: fitting them put the labelled arms 15-20 mm further off on both seeds measured
+#: (docs/measurements.md, "The head and the feet from the landmarks").
+SITE_LANDMARKS = {"head": (7, 8), "l_heel": (29,), "r_heel": (30,), "l_toe": (31,),
+                  "r_toe": (32,)}
 #: metres: a joint's distance to its keypoint counts up to this much
 #: (:func:`keypoint_distance`): a triangulated keypoint is 4-6 cm off on a good frame (the
 #: Pose2Sim take against hand labels), a wrong one (a limb confused with the other) is off
@@ -528,11 +532,10 @@ def site_points(points, name: str) -> np.ndarray:
 
     Returns
     -------
-    (..., 3) float64 metres, the midpoint of the site's two landmarks; NaN where either is
+    (..., 3) float64 metres, the mean of the site's landmarks; NaN where any is
     """
-    a, b = SITE_LANDMARKS[name]
     points = np.asarray(points, dtype=np.float64)
-    return 0.5 * (points[..., a, :] + points[..., b, :])
+    return points[..., list(SITE_LANDMARKS[name]), :].mean(axis=-2)
 
 
 def keypoint_distance(joints, targets, cap: float = DISTANCE_CAP) -> np.ndarray:

@@ -325,7 +325,7 @@ class _SilhouetteFrames:
 
         self.template_body = body
         opt = HpsOptions()
-        self.kp_sites, self.kp_points = keypoint_targets(self.dataset, body, opt)
+        self.kp_sites, self.kp_points = keypoint_targets(self.dataset, body, opt, sites=False)
         #: metres of mean distance that cost the whole area (the tracker's default scale)
         self.kp_scale = opt.keypoints
 

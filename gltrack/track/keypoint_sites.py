@@ -1,13 +1,13 @@
 """The points of a body that a dataset's triangulated keypoints mark.
 
 The keypoints (``keypoints.npz``, :mod:`gltrack.observe.keypoints`) mark twelve joint centres
-(:data:`~gltrack.observe.keypoints.BODY_JOINTS`) and, as midpoints of two landmarks, three
-points that are no joint (:data:`~gltrack.observe.keypoints.SITE_LANDMARKS`): the head's centre
-and the two hands' knuckles. The joints alone leave the head's and the hands' rotations to the
-silhouettes, where a head is a small blob; the sites pin them. Each site sits where the
-procedural mesh draws it, a fraction of its segment's tip vector from the joint
-(:data:`gltrack.body.mesh.HEAD_CENTRE`, :data:`gltrack.body.mesh.KNUCKLES`), so it follows the
-skeleton's proportions (the body estimate scores many skeletons with one set of sites).
+(:data:`~gltrack.observe.keypoints.BODY_JOINTS`) and, as landmarks or midpoints of two, points
+that are no joint (:data:`~gltrack.observe.keypoints.SITE_LANDMARKS`): the head's centre, the
+heels and the toe tips. The joints alone leave the head's and the feet's rotations to the
+silhouettes, where they are small blobs; the sites pin them. Each site sits where the
+procedural mesh draws it (:mod:`gltrack.body.mesh`: the head's centre
+:data:`~gltrack.body.mesh.HEAD_CENTRE`, the foot's ends :func:`~gltrack.body.mesh.foot_ends`),
+so it follows the skeleton's proportions.
 """
 from __future__ import annotations
 
@@ -15,15 +15,25 @@ import logging
 
 import numpy as np
 
-from gltrack.body.mesh import HEAD_CENTRE, KNUCKLES, segment_tip
-from gltrack.observe.keypoints import BODY_JOINTS, SITE_LANDMARKS, site_points
+from gltrack.body.mesh import HEAD_CENTRE, foot_ends, segment_tip
+from gltrack.observe.keypoints import BODY_JOINTS, site_points
 
 log = logging.getLogger(__name__)
 
+
+def _on_tip(joint, fraction):
+    return lambda skeleton: fraction * segment_tip(skeleton, joint)
+
+
+def _foot_end(ankle, end):
+    return lambda skeleton: foot_ends(skeleton, ankle)[end]
+
+
 #: each site of :data:`~gltrack.observe.keypoints.SITE_LANDMARKS`: the joint it rides on and
-#: the fraction of that joint's tip vector where it sits
-SITE_BONES = {"head": ("head", HEAD_CENTRE), "l_hand": ("l_wrist", KNUCKLES),
-              "r_hand": ("r_wrist", KNUCKLES)}
+#: its offset from that joint in the rest frame of a skeleton, (3,) metres
+SITE_BONES = {"head": ("head", _on_tip("head", HEAD_CENTRE)),
+              **{f"{s}_heel": (f"{s}_ankle", _foot_end(f"{s}_ankle", 0)) for s in "lr"},
+              **{f"{s}_toe": (f"{s}_ankle", _foot_end(f"{s}_ankle", 1)) for s in "lr"}}
 
 
 class KeypointSites:
@@ -42,15 +52,8 @@ class KeypointSites:
 
     def __init__(self, names, skeleton):
         self.names = tuple(names)
-        bones, fractions, tips = [], [], []
-        for n in self.names:
-            joint, frac = SITE_BONES.get(n, (n, 0.0))
-            bones.append(skeleton.index(joint))
-            fractions.append(frac)
-            tips.append(joint)
-        self.bones = np.asarray(bones, dtype=np.int64)
-        self._fractions = np.asarray(fractions, dtype=np.float64)
-        self._tips = tuple(tips)
+        self.bones = np.asarray([skeleton.index(SITE_BONES[n][0] if n in SITE_BONES else n)
+                                 for n in self.names], dtype=np.int64)
         self._cached = (None, None)  # (skeleton, local offsets) of the last call
 
     def local(self, skeleton) -> np.ndarray:
@@ -59,9 +62,9 @@ class KeypointSites:
         if self._cached[0] is skeleton:
             return self._cached[1]
         out = np.zeros((len(self.names), 3))
-        for k, frac in enumerate(self._fractions):
-            if frac:
-                out[k] = frac * segment_tip(skeleton, self._tips[k])
+        for k, name in enumerate(self.names):
+            if name in SITE_BONES:
+                out[k] = SITE_BONES[name][1](skeleton)
         self._cached = (skeleton, out)
         return out
 
@@ -73,12 +76,16 @@ class KeypointSites:
         return kin.transform_points(pose, self.bones, self.local(kin.skeleton))
 
 
-def keypoint_targets(dataset, body, opt):
+def keypoint_targets(dataset, body, opt, sites: bool = True):
     """The points of ``body`` the dataset's keypoints mark, and those keypoints frame by frame.
 
     A joint counts when the body has it (with ``--dof upper``, not the hidden knees and
-    ankles); a site (:data:`SITE_BONES`) when its joint turns in the body's DOF preset, since
-    it is there to orient that joint.
+    ankles); a site (:data:`SITE_BONES`) when ``sites`` is set and its joint turns in the body's
+    DOF preset, since it is there to orient that joint (``upper`` and ``38`` fix the ankles).
+    The body estimate leaves the sites out: a site's offset from its joint is the mesh's, not
+    the subject's, so it would measure bones by the mesh's proportions (with the sites in the
+    estimate the seated take's shoulders came out 3-4 cm wider, and its labelled arms further
+    off); a joint's keypoint marks the joint itself.
 
     Returns
     -------
@@ -94,15 +101,15 @@ def keypoint_targets(dataset, body, opt):
                if body.dofs.preset != "upper" or n.split("_", 1)[1] not in ("knee", "ankle")]
     joints = [n for n in tracked if n in names and n in kp["names"]]
     points = [kp["points"][:, kp["names"].index(n)] for n in joints]
-    sites = []
-    if len(kp["names"]) == 33:  # MediaPipe's landmarks, of which the sites are midpoints
+    matched = []
+    if sites and len(kp["names"]) == 33:  # MediaPipe's landmarks, the sites' source
         for site, (joint, _) in SITE_BONES.items():
             if joint in names and body.dofs.joint_dofs(names.index(joint)).size:
-                sites.append(site)
+                matched.append(site)
                 points.append(site_points(kp["points"], site))
-    if not joints and not sites:
+    if not joints and not matched:
         log.warning("the dataset's keypoints mark none of the body's joints; not used")
         return None, None
     log.info("keypoints: %d joints and %d sites (%s) matched with the dataset's triangulated "
-             "keypoints", len(joints), len(sites), ", ".join(sites) or "none")
-    return KeypointSites(joints + sites, body.skeleton), np.stack(points, axis=1)
+             "keypoints", len(joints), len(matched), ", ".join(matched) or "none")
+    return KeypointSites(joints + matched, body.skeleton), np.stack(points, axis=1)

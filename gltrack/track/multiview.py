@@ -270,8 +270,8 @@ class MultiviewOptions(Options):
         model is installed; :mod:`gltrack.observe.keypoints`). Every weighting adds
         ``area * d / keypoints`` pixels to a pose's silhouette error, ``d`` the mean distance
         of its hips, knees, ankles, shoulders, elbows and wrists to their keypoints, and of
-        the head's centre and the hands' knuckles to the ears' and knuckles' midpoints where
-        the preset turns the head and wrists (:mod:`gltrack.track.keypoint_sites`), each
+        the head's centre, heels and toe tips to the ears' midpoint, heels and toes where the
+        preset turns the head and ankles (:mod:`gltrack.track.keypoint_sites`), each
         capped at :data:`~gltrack.observe.keypoints.DISTANCE_CAP` (knees and ankles left out
         with ``--dof upper``; points without a keypoint in a frame left out). Why 0.15 m: the
         keypoints are 4-6 cm from hand labels on a good frame, and at the right pose real
