@@ -82,10 +82,9 @@ def keypoint_targets(dataset, body, opt, sites: bool = True):
     A joint counts when the body has it (with ``--dof upper``, not the hidden knees and
     ankles); a site (:data:`SITE_BONES`) when ``sites`` is set and its joint turns in the body's
     DOF preset, since it is there to orient that joint (``upper`` and ``38`` fix the ankles).
-    The body estimate leaves the sites out: a site's offset from its joint is the mesh's, not
-    the subject's, so it would measure bones by the mesh's proportions (with the sites in the
-    estimate the seated take's shoulders came out 3-4 cm wider, and its labelled arms further
-    off); a joint's keypoint marks the joint itself.
+    The body estimate's bone fit leaves the sites out (its start pose, the tracker's automatic
+    start, has them): a site's offset from its joint is the mesh's, not the subject's, so it
+    would measure bones by the mesh's proportions; a joint's keypoint marks the joint itself.
 
     Returns
     -------
