@@ -393,7 +393,7 @@ def test_keypoints_pull_the_bones_to_the_joints_where_masks_spill(tmp_path, ctx,
     views = body_estimate._SilhouetteFrames(ds, ctx, BodyModel.build(true.skeleton), 64,
                                             np.random.default_rng(0))
     try:
-        assert views.kp_sites.names == tuple(BODY_JOINTS)  # no head, hand or foot sites
+        assert views.kp_sites.names == tuple(BODY_JOINTS)  # no head or foot sites
         P = gt["params"]
         views.add(0, P[0])
         kin = Kinematics(true.skeleton, true.dofs)

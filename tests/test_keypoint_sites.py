@@ -57,7 +57,7 @@ def test_the_head_site_is_the_centre_of_the_head_the_mesh_draws(height):
     foot = V[:, body.mesh.part == PARTS.index("l_foot")]
     toe = KeypointSites(["l_toe", "l_heel"], body.skeleton).positions(body.kin, X)
     ankle = body.joints(X)[:, body.skeleton.index("l_ankle")]
-    for k, sign in ((0, 1), (1, -1)):
+    for k in (0, 1):
         along = toe[:, k] - ankle  # the foot's ends: the farthest vertices along this axis
         u = along / np.linalg.norm(along, axis=1, keepdims=True)
         reach = np.einsum("nvi,ni->nv", foot - ankle[:, None], u).max(axis=1)
