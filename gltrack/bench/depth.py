@@ -226,7 +226,7 @@ def _bench_honest(bvh, first, n, work, ctx, shared) -> dict:
     from gltrack.body.model import body_from_meta
     from gltrack.data.dataset import Dataset
 
-    ds = synth_depth(bvh, work / "data_honest", first, n, extra=HONEST.synth_flags(shared))
+    ds = synth_depth(bvh, work / "data_honest", first, n, extra=HONEST.synth_flags(shared, "depth"))
     out = {"runs": {}}
     for method in METHODS:
         res_dir = work / f"{method}_honest"

@@ -224,6 +224,8 @@ def _bench_honest(shared, bvh, src, work, budget, ctx, seed) -> dict:
                        protocol=HONEST)}
     out["body_error"] = body_error_of(work / "honest_hps", ds)
     with Dataset.open(ds) as d:
+        # the landmark network's record (None: not installed, silhouettes only)
+        out["keypoints"] = d.meta.get("keypoints")
         x0 = np.array(d.groundtruth()["params"][0], dtype=np.float64)
         x0[body_from_meta(d.body).dofs.index("pelvis_ry")] += WRONG_START_RAD
     row = _run(ds, method, opts, work / "honest_wrong_start", "full", x0, ctx, seed,
@@ -469,8 +471,9 @@ def table(res: dict) -> str:
         if not h:
             continue
         b, w = h.get("body_error"), h["wrong_start"]
+        cue = "keypoints" if h.get("keypoints") else "no keypoints"
         lines.append(f"{clip:8s} honest hps {h['hps']['mean_joint_error_mm']:.1f} mm "
-                     f"(<= {HONEST_HPS_MM:g}); start turned 90 deg: {w['text']} "
+                     f"(<= {HONEST_HPS_MM:g}; {cue}); start turned 90 deg: {w['text']} "
                      f"({w['mean_joint_error_mm']:.1f} mm)")
         if b:
             lines.append(f"{clip:8s} honest body estimate: {body_error_text(b)}")

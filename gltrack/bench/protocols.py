@@ -9,7 +9,9 @@
     (``--body estimate``), the automatic start (``--init auto``) and the subject drawn with a
     rigged mesh nobody on the project wrote (:data:`SUBJECT_MESH`, MakeHuman, fitted to the
     clip's skeleton by ``gltrack synth --mesh``), so the tracker's surface never matches it
-    exactly.
+    exactly. Multi-view datasets also get the body keypoints ``gltrack ingest`` gives a user's
+    videos: the same landmark network run on the rendered frames (``gltrack synth
+    --keypoints auto``), which the trackers fit as they do on real footage.
 """
 from __future__ import annotations
 
@@ -31,27 +33,31 @@ class Protocol:
     body : ``track(body=...)``: "dataset" or "estimate"
     subject : mesh the simulator draws the subject with, relative to ../shared (None: the
         tracker's own procedural mesh)
+    keypoints : multi-view datasets get keypoints found in their frames (``synth --keypoints
+        auto``: none when the landmark model is not installed)
     """
 
     name: str
     init: str
     body: str
     subject: str | None
+    keypoints: bool = False
 
-    def synth_flags(self, shared) -> list:
-        """Extra ``gltrack synth`` arguments of this protocol's datasets.
+    def synth_flags(self, shared, rig: str = "multiview") -> list:
+        """Extra ``gltrack synth --rig RIG`` arguments of this protocol's datasets.
 
         Raises
         ------
         FileNotFoundError
             The subject mesh is not in ``shared``.
         """
+        flags = ["--keypoints", "auto"] if self.keypoints and rig == "multiview" else []
         if self.subject is None:
-            return []
+            return flags
         mesh = Path(shared) / self.subject
         if not mesh.is_file():
             raise FileNotFoundError(f"{mesh}: the honest protocol's subject mesh is missing")
-        return ["--mesh", str(mesh)]
+        return ["--mesh", str(mesh), *flags]
 
     def track_args(self) -> dict:
         """``gltrack.track.runner.track`` keyword arguments of this protocol."""
@@ -59,7 +65,7 @@ class Protocol:
 
 
 ORACLE = Protocol("oracle", init="groundtruth", body="dataset", subject=None)
-HONEST = Protocol("honest", init="auto", body="estimate", subject=SUBJECT_MESH)
+HONEST = Protocol("honest", init="auto", body="estimate", subject=SUBJECT_MESH, keypoints=True)
 PROTOCOLS = {p.name: p for p in (ORACLE, HONEST)}
 
 

@@ -52,6 +52,10 @@ def add_arguments(p):
     p.add_argument("--girth-scale", type=float, default=1.0, metavar="S",
                    help="subject thinner (< 1) or stouter (> 1) than the default body, within "
                         f"{GIRTH_SCALE_RANGE[0]:g}..{GIRTH_SCALE_RANGE[1]:g}")
+    p.add_argument("--keypoints", default="none", metavar="none|auto|MODEL.tflite",
+                   help="multiview: find body keypoints in the rendered frames with the landmark "
+                        "network gltrack ingest uses and write keypoints.npz, as a user's "
+                        "dataset has them ('auto': the installed model; default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
 
 
@@ -73,6 +77,33 @@ def parse_frames(text):
     from .common import parse_frames as parse
 
     return parse(text)
+
+
+def keypoint_model(choice: str, rig: str):
+    """``--keypoints`` -> the landmark model's path, or None for "none".
+
+    "auto" without an installed model logs that the dataset gets no keypoints (as ``gltrack
+    ingest`` does); a named file that does not exist, or keypoints for the depth rig, is a
+    UsageError.
+    """
+    from .common import UsageError
+
+    if choice == "none":
+        return None
+    if rig != "multiview":
+        raise UsageError("--keypoints applies to the multiview rig only")
+    from gltrack.observe.keypoints import find_model
+
+    if choice == "auto":
+        path = find_model(None)
+        if path is None:
+            log.warning("--keypoints auto: no pose landmark model installed (scripts/setup.sh "
+                        "copies it); the dataset gets no keypoints")
+        return path
+    path = Path(choice)
+    if not path.is_file():
+        raise UsageError(f"--keypoints {choice}: no such model file")
+    return path
 
 
 def run(args):
@@ -104,6 +135,7 @@ def run(args):
     if subject is not None and not subject.is_file():
         raise ValueError(f"--mesh {subject}: no such file")
 
+    keypoints = keypoint_model(args.keypoints, args.rig)
     from gltrack.motion.bvh import read_bvh
     from gltrack.motion.retarget import load_motion
 
@@ -123,7 +155,7 @@ def run(args):
         path = synthesize(params, skeleton, dofs, args.fps, args.rig, out, seed=args.seed,
                           size=size, n_cameras=args.cameras or 4, occluder=args.occluder,
                           distractor=args.distractor, noise=args.noise, subject=subject,
-                          girth_scale=args.girth_scale,
+                          girth_scale=args.girth_scale, keypoints=keypoints,
                           progress=not getattr(args, "quiet", False), overwrite=args.overwrite)
     print(f"wrote {path} ({len(params)} frames at {args.fps:g} fps, rig {args.rig})")
     return 0
