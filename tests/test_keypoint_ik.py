@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from gltrack.body.model import BodyModel
-from gltrack.observe.keypoints import BODY_JOINTS, LANDMARKS, NAMES
 from gltrack.track.keypoint_ik import LIMBS, NEAR, limb_targets, propose_limbs
 
 SITES = [n for limb in LIMBS.values() for n in limb[1:]]
@@ -106,10 +105,8 @@ def test_the_tracker_brings_a_lost_arm_back_to_its_keypoints(tmp_path, ctx):
     """A rendered dataset, keypoints on the true joints: from a start with the left arm raised
     where the person's hangs, ``keypoint_ik`` puts it back in the first step (and says so in
     the frame's info); without it the arm stays raised."""
-    from gltrack.bench.multiview import RING, render_dataset
-    from gltrack.bench.rigs import ring_cameras
-    from gltrack.data.dataset import Dataset
     from gltrack.track.multiview import HpsOptions, HPSTracker
+    from trackdata import keypoint_dataset
 
     body = BodyModel.build()
     d = body.dofs
@@ -118,17 +115,7 @@ def test_the_tracker_brings_a_lost_arm_back_to_its_keypoints(tmp_path, ctx):
     P[:, d.index("l_shoulder_rz")] = -1.3  # hanging
     P[:, d.index("r_shoulder_rz")] = 1.3
     P = d.validate(P)
-    path = tmp_path / "ds"
-    cams = ring_cameras((0.0, 0.9, 0.0), **dict(RING, radius=3.0))
-    render_dataset(path, body, P, cams, 15.0, np.random.default_rng(3))
-    points = np.full((3, 33, 3), np.nan)
-    J = body.joints(P)
-    for name in BODY_JOINTS:
-        points[:, LANDMARKS[name]] = J[:, body.skeleton.names.index(name)]
-    n, c = 3, len(cams)
-    np.savez(path / "keypoints.npz", uv=np.zeros((n, c, 33, 2)), visibility=np.ones((n, c, 33)),
-             points=points, residual=np.zeros((n, c, 33)), names=np.array(NAMES))
-    ds = Dataset.open(path)
+    ds, J = keypoint_dataset(tmp_path / "ds", body, P)
     start = P[0].copy()
     start[d.index("l_shoulder_rz")] = 1.2  # raised over the head
     wrist = body.skeleton.names.index("l_wrist")

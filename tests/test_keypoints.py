@@ -10,22 +10,18 @@ import pytest
 from gltrack.camera import look_at_camera, triangulate
 from gltrack.observe.keypoints import (BODY_JOINTS, DISTANCE_CAP, INPUT, LANDMARKS, MIRROR,
                                        NAMES, Detection, PoseLandmarker, confirmed_views,
-                                       detect_sequence,
-                                       find_model, keypoint_distance, segmentation_size,
+                                       detect_sequence, keypoint_distance, segmentation_size,
                                        triangulate_keypoints)
 
 from conftest import REPO
 from test_triangulate import rig as _rig  # four distorted cameras round a person
+from trackdata import landmark_model
 
 LABELS = REPO / "scripts" / "data" / "pose2sim_balancing_keypoints.json"
 
 
 def _model():
-    path = find_model()
-    if path is None:
-        pytest.skip("the pose landmark model is not installed (scripts/setup.sh copies it from "
-                    "the mediapipe wheel; or set GLTRACK_POSE_MODEL)")
-    return path
+    return landmark_model()
 
 
 def test_mirror_is_the_left_right_exchange():
@@ -314,12 +310,10 @@ def test_the_tracker_adds_the_keypoints_distance_to_its_cost(tmp_path, ctx):
     pose and grows away from it, the weights rank by silhouette error plus that cost, a step
     reports the estimate's distance, and ``keypoints = 0`` (or a dataset without the file)
     leaves the silhouette weights alone."""
-    from gltrack.bench.multiview import RING, render_dataset
-    from gltrack.bench.rigs import ring_cameras
     from gltrack.body.model import BodyModel
-    from gltrack.data.dataset import Dataset
     from gltrack.sample import bandouch_weights
     from gltrack.track.multiview import HpsOptions, HPSTracker
+    from trackdata import keypoint_dataset
 
     body = BodyModel.build()
     d = body.dofs
@@ -327,17 +321,7 @@ def test_the_tracker_adds_the_keypoints_distance_to_its_cost(tmp_path, ctx):
     P[:, 2] = [0.0, 0.05, 0.1]
     P[:, d.index("l_shoulder_rz")] = [-1.2, -1.0, -0.8]
     P = d.validate(P)
-    path = tmp_path / "ds"
-    cams = ring_cameras((0.0, 0.9, 0.0), **dict(RING, radius=3.0))
-    render_dataset(path, body, P, cams, 15.0, np.random.default_rng(3))
-    points = np.full((3, 33, 3), np.nan)
-    J = body.joints(P)
-    for name in BODY_JOINTS:
-        points[:, LANDMARKS[name]] = J[:, body.skeleton.names.index(name)]
-    n, c = 3, len(cams)
-    np.savez(path / "keypoints.npz", uv=np.zeros((n, c, 33, 2)), visibility=np.ones((n, c, 33)),
-             points=points, residual=np.zeros((n, c, 33)), names=np.array(NAMES))
-    ds = Dataset.open(path)
+    ds, _ = keypoint_dataset(tmp_path / "ds", body, P)
     rng = np.random.default_rng(5)
     X = np.repeat(P[2][None], 6, axis=0)
     X[1:] += rng.normal(0.0, 0.1, X[1:].shape) * np.arange(1, 6)[:, None]

@@ -11,8 +11,8 @@ import pytest
 
 from gltrack.cli import main
 from gltrack.data.dataset import Dataset
-from gltrack.observe.keypoints import find_model
 from test_synth import _synth_all, _write_clip
+from trackdata import landmark_model
 
 #: joints whose keypoint marks them on any skeleton convention to within a limb's width
 LIMB_JOINTS = ("l_elbow", "r_elbow", "l_wrist", "r_wrist", "l_knee", "r_knee", "l_ankle",
@@ -24,11 +24,7 @@ def _other_side(name: str) -> str:
 
 
 def _model():
-    path = find_model()
-    if path is None:
-        pytest.skip("the pose landmark model is not installed (scripts/setup.sh copies it from "
-                    "the mediapipe wheel; or set GLTRACK_POSE_MODEL)")
-    return path
+    return landmark_model()
 
 
 @pytest.fixture(scope="module")

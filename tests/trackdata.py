@@ -74,3 +74,37 @@ def make_depth_dataset(out, n=8, seed=0, noise=0.005):
             w.write_depth(f, 0, zf)
         w.write_groundtruth(body.joints(P), list(body.skeleton.names), body.marker_positions(P), P)
     return body, P
+
+
+def landmark_model():
+    """The installed pose landmark model's path; skips the test without one."""
+    import pytest
+
+    from gltrack.observe.keypoints import find_model
+
+    path = find_model()
+    if path is None:
+        pytest.skip("the pose landmark model is not installed (scripts/setup.sh copies it from "
+                    "the mediapipe wheel; or set GLTRACK_POSE_MODEL)")
+    return path
+
+
+def keypoint_dataset(path, body, P, seed=3):
+    """A 4-camera ring dataset of the poses ``P`` (N, D) rendered with the CPU reference
+    (:func:`gltrack.bench.multiview.render_dataset`) and a ``keypoints.npz`` whose triangulated
+    points lie on the true joints: returns the open Dataset and the joints (N, J, 3)."""
+    from gltrack.bench.multiview import RING, render_dataset
+    from gltrack.bench.rigs import ring_cameras
+    from gltrack.data.dataset import Dataset
+    from gltrack.observe.keypoints import BODY_JOINTS, LANDMARKS, NAMES
+
+    cams = ring_cameras((0.0, 0.9, 0.0), **dict(RING, radius=3.0))
+    render_dataset(path, body, P, cams, 15.0, np.random.default_rng(seed))
+    n, c = len(P), len(cams)
+    points = np.full((n, 33, 3), np.nan)
+    J = body.joints(P)
+    for name in BODY_JOINTS:
+        points[:, LANDMARKS[name]] = J[:, body.skeleton.names.index(name)]
+    np.savez(path / "keypoints.npz", uv=np.zeros((n, c, 33, 2)), visibility=np.ones((n, c, 33)),
+             points=points, residual=np.zeros((n, c, 33)), names=np.array(NAMES))
+    return Dataset.open(path), J
