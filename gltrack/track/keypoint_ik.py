@@ -1,14 +1,15 @@
-"""Limb proposals from the keypoints: each limb solved onto its two keypoints by inverse kinematics.
+"""Limb proposals from the keypoints: each limb solved onto its keypoints by inverse kinematics.
 
 The keypoint term of the multi-view weighting (``keypoints``) says how far a pose's joints are
 from the triangulated keypoints, but a particle filter only weighs the poses it draws: a limb
 the track has lost (an arm pointing the other way, the legs exchanged) lies far outside the
 particles' diffusion, and the keypoints that would bring it back are never reached. This is
 Ganapathi's evidence propagation carried to the multi-view tracker: after the sampler, each
-limb whose elbow and wrist (knee and ankle) have keypoints in this frame is solved onto them by
-the project's unscented-transform IK (:func:`gltrack.evidence.ik.ut_ik`) over its swing joint's
-and its middle joint's DOFs, from the estimate; the tracker weighs the solved limbs against the
-estimate and keeps those that weigh more (:meth:`gltrack.track.multiview.MultiviewTracker.step`).
+limb whose elbow or wrist (knee or ankle) has a keypoint in this frame, and lies at least
+:data:`NEAR` from it, is solved onto its keypoints by the project's unscented-transform IK
+(:func:`gltrack.evidence.ik.ut_ik`) over its swing joint's and its middle joint's DOFs, from
+three starts; the tracker weighs the solved limbs against the estimate and keeps those that
+weigh more (:meth:`gltrack.track.multiview.MultiviewTracker.solve_limbs`).
 """
 from __future__ import annotations
 
