@@ -632,9 +632,10 @@ class MultiviewTracker(Tracker):
             return SweepResult(x, np.zeros_like(x), 0, ())
         w = self.weights(np.stack([x] + [p.pose for p in props]))
         evaluations = len(props) + 1
-        log.debug("keypoint_ik: %s", ", ".join(
-            f"{p.limb} {p.before:.3f} -> {p.after:.3f} m, weight {w[k + 1]:.3g} against "
-            f"{w[0]:.3g}" for k, p in enumerate(props)))
+        if log.isEnabledFor(logging.DEBUG):  # the text only when it is shown
+            log.debug("keypoint_ik: %s", ", ".join(
+                f"{p.limb} {p.before:.3f} -> {p.after:.3f} m, weight {w[k + 1]:.3g} against "
+                f"{w[0]:.3g}" for k, p in enumerate(props)))
         better = [k for k in range(len(props)) if w[k + 1] > w[0]]
         if not better:
             return SweepResult(x, np.zeros_like(x), evaluations, ())
