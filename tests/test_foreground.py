@@ -16,8 +16,9 @@ import pytest
 
 from gltrack.camera import Camera, look_at_camera
 from gltrack.observe.foreground import (CUES, ForegroundParams, SequenceForeground, dilate_mask,
-                                        estimate_foreground, fill_boxes, masked_median,
-                                        shared_volume, support_column)
+                                        erode_mask, estimate_foreground, fill_boxes,
+                                        masked_median, outside_reaching, shared_volume,
+                                        support_column)
 
 W, H = 160, 120
 RADII = (0.22, 0.2, 0.12)
@@ -358,6 +359,75 @@ def test_person_prior_in_the_whole_chain():
     assert all(np.array_equal(x, y) for x, y in zip(off.masks, plain.masks))
     with pytest.raises(ValueError, match=r"person_prior\[1\] has 2 frames"):
         estimate_foreground(frames, cams, person_prior=[half[0], half[1][:2], None, None])
+
+
+def test_scene_trim_drops_a_coarse_prior_s_spill():
+    """A coarse prior (the truth dilated 5 px, as the landmark model's 256-pixel logits fill a
+    body's concavities) with ``scene_trim``: its pixels that show the scene seen in the other
+    frames go where they reach the mask's outside, so the masks come within the prior margin of
+    the truth in the views that see the subject pass sideways (cameras 1 and 3); without the
+    trim the spill stays. Cameras 0 and 2 see it come towards them: there the spill covers
+    scene that the subject hides in most frames (not known), and only part of it goes."""
+    rng = np.random.default_rng(5)
+    cams, frames, truth, _ = _scene(rng, np.linspace(-0.45, 0.45, 12), distractor=False)
+    coarse = [np.stack([dilate_mask(g, 5) for g in gs]).astype(np.uint8) * 255 for gs in truth]
+    r = ForegroundParams().prior_margin
+    runs = {trim: estimate_foreground(frames, cams, rng=np.random.default_rng(1),
+                                      person_prior=coarse,
+                                      params=ForegroundParams(scene_trim=trim))
+            for trim in (False, True)}
+    # per camera: the masks' pixels beyond the prior margin, over the truth's
+    spill = {trim: np.array([np.mean([np.mean(m & ~dilate_mask(g, r + 1)) / np.mean(g)
+                                      for m, g in zip(ms, gs)])
+                             for ms, gs in zip(res.masks, truth)])
+             for trim, res in runs.items()}
+    iou = {trim: _mean_iou(res.masks, truth) for trim, res in runs.items()}
+    assert np.all(spill[False] > 0.3), spill
+    assert np.all(spill[True][[1, 3]] < 0.02) and np.all(spill[True] < 0.5 * spill[False]), spill
+    assert np.all(iou[True] > iou[False] + 0.05), iou
+    # the stage says where the frames show the scene: the spill's ring, not the body
+    ring = [dilate_mask(g, 5) & ~dilate_mask(g, r + 1) for g in truth[1]]
+    scene = runs[True].stages["scene"][1]
+    assert np.mean([scene[t][ring[t]].mean() for t in range(12)]) > 0.9
+    assert np.mean([scene[t][truth[1][t]].mean() for t in range(12)]) < 0.05
+
+
+def test_scene_trim_keeps_a_scene_coloured_region_the_mask_encloses(moving):
+    """``with_prior`` with a ``scene`` stack: scene pixels in a ring at the mask's edge go,
+    scene pixels enclosed by the mask (clothes the colour of the background) stay, and with
+    ``scene_trim`` off the scene is ignored."""
+    cams, frames, truth, _ = moving
+    masks = [np.stack([dilate_mask(g, 4) for g in gs]) for gs in truth]
+    scene = []
+    for gs in truth:
+        s = np.stack([dilate_mask(g, 4) & ~g for g in gs])  # the ring
+        for t, g in enumerate(gs):
+            ys, xs = np.nonzero(erode_mask(g, 4))
+            s[t, ys[len(ys) // 2], xs[len(xs) // 2]] = True  # an enclosed pixel
+            s[t] |= erode_mask(g, 6)  # an enclosed region
+        scene.append(s)
+    est = SequenceForeground(frames, cams, rng=np.random.default_rng(1))
+    out = est.with_prior(masks, masks, scene)
+    for c in range(4):
+        for t in (0, 6, 11):
+            assert np.array_equal(out[c][t], masks[c][t] & ~(scene[c][t] & ~truth[c][t]))
+    est.params.scene_trim = False
+    assert all(np.array_equal(a, b) for a, b in zip(est.with_prior(masks, masks, scene), masks))
+
+
+def test_outside_reaching_keeps_components_that_touch_the_outside():
+    mask = np.zeros((20, 20), bool)
+    mask[2:18, 2:18] = True
+    mask[8:10, 8:10] = False  # a hole
+    region = np.zeros_like(mask)
+    region[2:5, 2:5] = True     # at the mask's edge: goes
+    region[12:15, 12:15] = True  # enclosed: stays
+    region[7:11, 7:11] = True    # around the hole (within the mask): goes
+    region &= mask
+    out = outside_reaching(region, mask)
+    assert out[2:5, 2:5].all() and not out[12:15, 12:15].any()
+    assert out[7:11, 7:11][mask[7:11, 7:11]].all()
+    assert not outside_reaching(np.zeros_like(mask), mask).any()
 
 
 def test_helpers_and_errors():

@@ -638,8 +638,9 @@ def write_masks(writer, frames, params=None, floor=None, person_prior=None):
     -------
     dict
         What ``meta.json`` records as ``"masks"``: ``method``, ``cues``, ``passes``,
-        ``work_size``, ``seconds``, ``foreground_fraction`` (per camera), and with a prior
-        ``prior_fraction`` (per camera: the fraction of frames whose mask the prior shaped).
+        ``work_size``, ``scene_trim``, ``seconds``, ``foreground_fraction`` (per camera), and
+        with a prior ``prior_fraction`` (per camera: the fraction of frames whose mask the
+        prior shaped).
     """
     import time
 
@@ -669,7 +670,8 @@ def write_masks(writer, frames, params=None, floor=None, person_prior=None):
     log.info("foreground: masks written in %.0f s; foreground fraction per camera %s", seconds,
              ", ".join(f"{c.name} {f:.3f}" for c, f in zip(cams, frac)))
     meta = {"method": "sequence-foreground", "cues": cues, "passes": int(params.passes),
-            "work_size": int(params.work_size), "seconds": round(seconds, 1),
+            "work_size": int(params.work_size), "scene_trim": bool(params.scene_trim),
+            "seconds": round(seconds, 1),
             "foreground_fraction": frac}
     if "prior" in res.stages:
         shaped = [round(float(np.mean(u.any(axis=(1, 2)))), 3) for u in res.stages["prior"]]

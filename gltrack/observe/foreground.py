@@ -68,7 +68,10 @@ on their own (``cues=``):
    (:meth:`SequenceForeground.with_prior`). Where the prior is
    missing (the person not found) the other cues stand alone. Measured on the Pose2Sim take
    (docs/measurements.md): the GrabCut spill onto the skin-coloured cupboards goes and the
-   still torso's holes fill.
+   still torso's holes fill. The segmentation is coarse (256-pixel logits) and fills the
+   body's concavities too, so where the prior's masks show the scene as observed (stage
+   ``"scene"``) in a region that reaches the mask's outside, that region goes
+   (``scene_trim``); an enclosed one stays.
 
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
 masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
@@ -181,6 +184,19 @@ def _convex_fill(mask) -> np.ndarray:
         pts = cv2.convexHull(np.stack([xs, ys], 1).astype(np.int32))
         cv2.fillConvexPoly(out, pts, 1)
     return out.astype(bool) | m
+
+
+def outside_reaching(region, mask) -> np.ndarray:
+    """(h, w) bool: the 8-connected components of ``region`` (within ``mask``) that touch a
+    pixel outside ``mask`` (the image's outside or a hole of it)."""
+    region = np.asarray(region, bool)
+    if not region.any():
+        return region.copy()
+    eight = np.ones((3, 3), bool)
+    labels, _ = ndimage.label(region, eight)
+    touching = ndimage.binary_dilation(~np.asarray(mask, bool), eight) & region
+    keep = np.unique(labels[touching])
+    return np.isin(labels, keep[keep > 0])
 
 
 def fill_boxes(shape, lo_px, hi_px) -> np.ndarray:
@@ -480,6 +496,12 @@ class ForegroundParams:
         ``"prior"``, :meth:`SequenceForeground.with_prior`): about one pixel of the landmark
         model's 256-pixel segmentation, whose crop is 1.25 times a standing person's height
         (at ``work_size`` 480, 1.5-2 pixels); the prior's edge is uncertain by that much.
+    scene_trim : bool
+        Drop the pixels of the prior's masks that show the scene as observed (background
+        seen in at least ``min_observed`` of the frames, the frame within ``threshold`` of
+        it) where they reach the mask's outside (:meth:`SequenceForeground.with_prior`):
+        the segmentation's 256-pixel logits fill a body's concavities. Measured on the
+        Pose2Sim take (docs/measurements.md): 4-5 % of the masks' pixels dropped.
     support_reach : float, metres
         Half the width of the support column (cue ``"support"``, :func:`support_column`) under
         the hull's centroid: in static balance the centre of mass is above the support, and a
@@ -524,6 +546,7 @@ class ForegroundParams:
     ghost_recurrence: float = 0.25
     ghost_gap: float = 0.05
     prior_margin: int = 2
+    scene_trim: bool = True
 
     def __post_init__(self):
         if int(self.work_size) < 32:
@@ -562,10 +585,12 @@ class ForegroundResult:
     known : list (C) of (h, w) bool, background observed (not inpainted)
     stages : dict, name -> list (C) of (T, h, w) bool masks of the last pass after each cue:
         ``"candidate"`` (temporal background, with shadows removed when that cue is on),
-        ``"hull"`` (multi-view consistent candidate), ``"grabcut"`` (refined, before the final
-        shadow veto), ``"hull_silhouette"`` (reprojection of the hull's main component), and
-        with the support cue ``"support_column"`` (the column's reprojection) and ``"support"``
-        (the pixels it added or confirmed)
+        ``"scene"`` (where the frame shows the background as observed: known there and no
+        candidate, shadows and ghosts included), ``"hull"`` (multi-view consistent
+        candidate), ``"grabcut"`` (refined, before the final shadow veto),
+        ``"hull_silhouette"`` (reprojection of the hull's main component), and with the
+        support cue ``"support_column"`` (the column's reprojection) and ``"support"`` (the
+        pixels it added or confirmed)
     full_size : list (C) of (W, H), pixels, size of the input images
     """
 
@@ -1129,17 +1154,20 @@ class SequenceForeground:
             bgy = bgr_to_yuv(bg)
             var = self.noise_var(c, bgy, spread, known)
             cs, cr, sh = self.candidates(c, bg, var, "shadows" in cues)
+            # where the frame shows the scene as observed: no change from a background seen
+            # in enough frames (before the ghost test, which finds more scene among changes)
+            scene = known[None] & ~cr
             ghost = None
             if "ghosts" in cues:
                 ghost = self.ghosts(c, cr, var)
                 if known_person is not None and known_person[c] is not None:
                     ghost &= ~known_person[c]
                 cs, cr = cs & ~ghost, cr & ~ghost
-            return bg, known, cs, cr, sh, ghost
+            return bg, known, cs, cr, sh, ghost, scene
 
-        bgs, knowns, cand, raw, shadow, ghosts = (list(x) for x in zip(
+        bgs, knowns, cand, raw, shadow, ghosts, scene = (list(x) for x in zip(
             *self.per_camera(background_and_candidates)))
-        stages = {"candidate": cand}
+        stages = {"candidate": cand, "scene": scene}
         if "ghosts" in cues:
             stages["ghost"] = ghosts
         if "hull" not in cues and "grabcut" not in cues:
@@ -1276,7 +1304,7 @@ class SequenceForeground:
             use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
             masks, stages, bgs, knowns = self.run_pass(exclude, use, given)
             if prior is not None:
-                masks = self.with_prior(masks, prior)
+                masks = self.with_prior(masks, prior, stages["scene"])
                 stages["prior"] = prior
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
@@ -1317,7 +1345,7 @@ class SequenceForeground:
                 used[c][t] = frame[c] & dilate_mask(sil[c], self.params.hull_margin)
         return used
 
-    def with_prior(self, masks, used):
+    def with_prior(self, masks, used, scene=None):
         """Combine the cues' masks with the prior's consistent pixels (cue ``"prior"``).
 
         Each camera keeps the prior's consistent pixels (:meth:`consistent_prior`) and the
@@ -1327,20 +1355,32 @@ class SequenceForeground:
         the prior is a few pixels short. A camera and frame without consistent prior pixels
         keeps the cues' mask.
 
+        With ``scene`` (and ``params.scene_trim``) the pixels of that union that show the
+        scene as observed are then dropped where they reach the mask's outside
+        (:func:`outside_reaching`): the prior's coarse logits fill the concavities of a body
+        (the gap between a hanging arm and the trunk, between the legs), whose background
+        the other frames show. A scene-coloured region enclosed by the mask (dark shorts in
+        front of a dark chair) stays, as filling such holes is what the prior is for.
+
         Parameters
         ----------
         masks : list (C) of (T, h, w) bool, the cues' masks
         used : list (C) of (T, h, w) bool, the prior's consistent pixels
+        scene : list (C) of (T, h, w) bool, optional, where each frame shows the scene as
+            observed (stage ``"scene"`` of :meth:`run_pass`)
 
         Returns
         -------
         list (C) of (T, h, w) bool
         """
         r = self.params.prior_margin
+        trim = scene is not None and self.params.scene_trim
         out = [m.copy() for m in masks]
         for c, (m, u) in enumerate(zip(masks, used)):
             for t in np.flatnonzero(u.any(axis=(1, 2))):
                 out[c][t] = (m[t] & dilate_mask(u[t], r)) | u[t]
+                if trim:
+                    out[c][t] &= ~outside_reaching(out[c][t] & scene[c][t], out[c][t])
         return out
 
     def _dilate_stack(self, stack):
