@@ -367,15 +367,19 @@ def test_scene_trim_drops_a_coarse_prior_s_spill():
     frames go where they reach the mask's outside, so the masks come within the prior margin of
     the truth in the views that see the subject pass sideways (cameras 1 and 3); without the
     trim the spill stays. Cameras 0 and 2 see it come towards them: there the spill covers
-    scene that the subject hides in most frames (not known), and only part of it goes."""
+    scene that the subject hides in most frames (not known), and only part of it goes. Off
+    (the default), nothing is trimmed."""
     rng = np.random.default_rng(5)
-    cams, frames, truth, _ = _scene(rng, np.linspace(-0.45, 0.45, 12), distractor=False)
+    cams, frames, truth, _ = _scene(rng, np.linspace(-0.9, 0.9, 12), distractor=False)
     coarse = [np.stack([dilate_mask(g, 5) for g in gs]).astype(np.uint8) * 255 for gs in truth]
     r = ForegroundParams().prior_margin
     runs = {trim: estimate_foreground(frames, cams, rng=np.random.default_rng(1),
                                       person_prior=coarse,
                                       params=ForegroundParams(scene_trim=trim))
             for trim in (False, True)}
+    default = estimate_foreground(frames, cams, rng=np.random.default_rng(1),
+                                  person_prior=coarse)
+    assert all(np.array_equal(a, b) for a, b in zip(default.masks, runs[False].masks))
     # per camera: the masks' pixels beyond the prior margin, over the truth's
     spill = {trim: np.array([np.mean([np.mean(m & ~dilate_mask(g, r + 1)) / np.mean(g)
                                       for m, g in zip(ms, gs)])
@@ -406,7 +410,8 @@ def test_scene_trim_keeps_a_scene_coloured_region_the_mask_encloses(moving):
             s[t, ys[len(ys) // 2], xs[len(xs) // 2]] = True  # an enclosed pixel
             s[t] |= erode_mask(g, 6)  # an enclosed region
         scene.append(s)
-    est = SequenceForeground(frames, cams, rng=np.random.default_rng(1))
+    est = SequenceForeground(frames, cams, params=ForegroundParams(scene_trim=True),
+                             rng=np.random.default_rng(1))
     out = est.with_prior(masks, masks, scene)
     for c in range(4):
         for t in (0, 6, 11):

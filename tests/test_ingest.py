@@ -137,6 +137,7 @@ def test_ingest_estimates_foreground_masks(tmp_path, capsys):
     ds = Dataset.open(out)
     meta = json.loads((out / "meta.json").read_text())
     assert meta["masks"]["method"] == "sequence-foreground" and meta["masks"]["passes"] == 2
+    assert meta["masks"]["scene_trim"] is False
     # the floor is known (cameras 1.6 m above z = 0) and the ball floats: the support cue runs
     # and finds nothing of the ball's colour on the floor under it
     assert meta["world"]["floor"] == 0.0 and "support" in meta["masks"]["cues"]
@@ -157,6 +158,25 @@ def test_ingest_estimates_foreground_masks(tmp_path, capsys):
             t = truth[k][j]
             ious.append((m & t).sum() / max((m | t).sum(), 1))
     assert np.mean(ious) > 0.6, np.round(ious, 2)
+
+
+def test_scene_trim_flag_reaches_the_masks(tmp_path, capsys):
+    """``--scene-trim`` is recorded in meta.json and said; without a person prior (no
+    landmark model here) it changes no mask."""
+    cams = _rig([(120, 90)] * 4)
+    save_pose2sim_toml(tmp_path / "Calib.toml", cams)
+    videos, _ = _ball_videos(tmp_path, cams, 6)
+    args = ["-q", "ingest", "--calibration", str(tmp_path / "Calib.toml"), "--video",
+            *map(str, videos), "--keypoints", "none"]
+    assert main([*args, "--out", str(tmp_path / "plain")]) == 0
+    assert "--scene-trim" not in capsys.readouterr().out
+    assert main([*args, "--out", str(tmp_path / "trim"), "--scene-trim"]) == 0
+    assert "trimmed where they show the scene (--scene-trim)" in capsys.readouterr().out
+    metas = [json.loads((tmp_path / d / "meta.json").read_text())["masks"]
+             for d in ("plain", "trim")]
+    assert [m["scene_trim"] for m in metas] == [False, True]
+    a, b = Dataset.open(tmp_path / "plain"), Dataset.open(tmp_path / "trim")
+    assert all(np.array_equal(a.mask(j, k), b.mask(j, k)) for j in range(6) for k in range(4))
 
 
 def test_default_scale_fps_and_order_matching(tmp_path, caplog):

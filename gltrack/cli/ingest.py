@@ -51,6 +51,13 @@ def add_arguments(p):
                         "frames needed; about a second per frame of 4 cameras) and write them as "
                         "camN_mask/; none: frames only (the trackers then need masks or "
                         "camN_background.png from elsewhere)")
+    p.add_argument("--scene-trim", action="store_true",
+                   help="trim the person segmentation's masks where they show the scene seen "
+                        "in the other frames and reach the mask's edge (the segmentation fills "
+                        "a body's concavities, e.g. between a hanging arm and the trunk): for "
+                        "a subject that moves about; off by default, since a still part that "
+                        "the segmentation misses in some frames (a seated person's torso) "
+                        "looks like the scene")
     p.add_argument("--keypoints", default="auto", metavar="auto|none|MODEL",
                    help="auto: find each camera's body landmarks (MediaPipe's pose landmark "
                         "model, which scripts/setup.sh installs) and triangulate them into "
@@ -103,7 +110,8 @@ def run(args):
         r = ingest(calibration, args.video, out, frames=frames, fps=args.fps, scale=args.scale,
                    up=args.up, timestamps=timestamps, overwrite=args.overwrite,
                    progress=not getattr(args, "quiet", False), max_gb=args.max_gb,
-                   masks=args.masks, floor=floor, keypoints=args.keypoints)
+                   masks=args.masks, floor=floor, keypoints=args.keypoints,
+                   scene_trim=args.scene_trim)
     dt = time.perf_counter() - t0
     sizes = ", ".join(f"{n} {w}x{h}" for n, (w, h) in zip(r["cameras"], r["sizes"]))
     up = r["up"] + (f" (auto, {r['up_angle_deg']:.0f} deg from the cameras' mean up)"
@@ -119,8 +127,9 @@ def run(args):
         shaped = ("" if prior is None else
                   f"; the landmark model's person segmentation shaped {min(prior):.0%}-"
                   f"{max(prior):.0%} of the frames")
+        trim = "; trimmed where they show the scene (--scene-trim)" if m.get("scene_trim") else ""
         print(f"foreground masks ({m['method']}, {m['passes']} passes, {m['seconds']:.0f} s): "
-              f"fraction of the image per camera {fr}{shaped}")
+              f"fraction of the image per camera {fr}{shaped}{trim}")
     else:
         print("no foreground masks (--masks none): give the dataset camN_mask/ or "
               "camN_background.png before tracking it")

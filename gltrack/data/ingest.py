@@ -443,7 +443,7 @@ def _folder_name(name, i, used):
 # --------------------------------------------------------------------------------------------
 def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="auto",
            timestamps=None, overwrite=False, progress=True, max_gb=DEFAULT_MAX_GB,
-           masks="auto", floor="auto", keypoints="auto"):
+           masks="auto", floor="auto", keypoints="auto", scene_trim=False):
     """Make a multi-view gltrack dataset from calibrated videos (see the module docstring).
 
     Parameters
@@ -478,6 +478,10 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
         the origin plane when every camera is above it (:func:`~gltrack.data.world.detect_floor`);
         None: unknown. Recorded in ``meta.json`` (``world.floor``); the masks' support cue
         needs it.
+    scene_trim : bool
+        Trim the person segmentation's masks where they show the scene seen in the other
+        frames (:attr:`gltrack.observe.foreground.ForegroundParams.scene_trim`): for a
+        subject that moves; off by default.
     keypoints : {"auto", "none"} or path
         ``"auto"``: find each camera's body landmarks and triangulate them
         (:mod:`gltrack.observe.keypoints`) when the landmark model is installed (logged and
@@ -603,7 +607,10 @@ def ingest(calibration, videos, out, *, frames=None, fps=None, scale=None, up="a
             writer.extra_meta["keypoints"] = kp_meta
         mask_meta = None
         if masks == "auto":
-            mask_meta = write_masks(writer, len(fmap), floor=floor, person_prior=prior)
+            from gltrack.observe.foreground import ForegroundParams
+
+            mask_meta = write_masks(writer, len(fmap), ForegroundParams(scene_trim=scene_trim),
+                                    floor=floor, person_prior=prior)
             writer.extra_meta["masks"] = mask_meta
     written = sum(p.stat().st_size for p in out.rglob("*.png"))
     return {"path": out, "frames": len(fmap), "fps": out_fps,
