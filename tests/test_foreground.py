@@ -364,11 +364,11 @@ def test_person_prior_in_the_whole_chain():
 def test_scene_trim_drops_a_coarse_prior_s_spill():
     """A coarse prior (the truth dilated 5 px, as the landmark model's 256-pixel logits fill a
     body's concavities) with ``scene_trim``: its pixels that show the scene seen in the other
-    frames go where they reach the mask's outside, so the masks come within the prior margin of
-    the truth in the views that see the subject pass sideways (cameras 1 and 3); without the
-    trim the spill stays. Cameras 0 and 2 see it come towards them: there the spill covers
-    scene that the subject hides in most frames (not known), and only part of it goes. Off
-    (the default), nothing is trimmed."""
+    frames go where they reach the mask's outside, where the subject itself passed in a
+    quarter of the frames the prior claimed them (``scene_contrast``): the spill's inner part,
+    more than half of it in every view; without the trim it all stays. A spill that the
+    subject never covers looks like a still part of it (a ghost: it always matches its
+    background) and stays. Off (the default), nothing is trimmed."""
     rng = np.random.default_rng(5)
     cams, frames, truth, _ = _scene(rng, np.linspace(-0.9, 0.9, 12), distractor=False)
     coarse = [np.stack([dilate_mask(g, 5) for g in gs]).astype(np.uint8) * 255 for gs in truth]
@@ -387,7 +387,7 @@ def test_scene_trim_drops_a_coarse_prior_s_spill():
              for trim, res in runs.items()}
     iou = {trim: _mean_iou(res.masks, truth) for trim, res in runs.items()}
     assert np.all(spill[False] > 0.3), spill
-    assert np.all(spill[True][[1, 3]] < 0.02) and np.all(spill[True] < 0.5 * spill[False]), spill
+    assert np.all(spill[True] < 0.5 * spill[False]), spill
     assert np.all(iou[True] > iou[False] + 0.05), iou
     # the stage says where the frames show the scene: the spill's ring, not the body
     ring = [dilate_mask(g, 5) & ~dilate_mask(g, r + 1) for g in truth[1]]
@@ -396,28 +396,37 @@ def test_scene_trim_drops_a_coarse_prior_s_spill():
     assert np.mean([scene[t][truth[1][t]].mean() for t in range(12)]) < 0.05
 
 
-def test_scene_trim_keeps_a_scene_coloured_region_the_mask_encloses(moving):
-    """``with_prior`` with a ``scene`` stack: scene pixels in a ring at the mask's edge go,
-    scene pixels enclosed by the mask (clothes the colour of the background) stay, and with
-    ``scene_trim`` off the scene is ignored."""
-    cams, frames, truth, _ = moving
-    masks = [np.stack([dilate_mask(g, 4) for g in gs]) for gs in truth]
-    scene = []
-    for gs in truth:
-        s = np.stack([dilate_mask(g, 4) & ~g for g in gs])  # the ring
-        for t, g in enumerate(gs):
-            ys, xs = np.nonzero(erode_mask(g, 4))
-            s[t, ys[len(ys) // 2], xs[len(xs) // 2]] = True  # an enclosed pixel
-            s[t] |= erode_mask(g, 6)  # an enclosed region
-        scene.append(s)
-    est = SequenceForeground(frames, cams, params=ForegroundParams(scene_trim=True),
-                             rng=np.random.default_rng(1))
-    out = est.with_prior(masks, masks, scene)
-    for c in range(4):
-        for t in (0, 6, 11):
-            assert np.array_equal(out[c][t], masks[c][t] & ~(scene[c][t] & ~truth[c][t]))
-    est.params.scene_trim = False
-    assert all(np.array_equal(a, b) for a, b in zip(est.with_prior(masks, masks, scene), masks))
+def test_scene_trim_keeps_what_is_enclosed_or_never_looked_different(moving):
+    """``with_prior`` with a ``scene`` stack, on a still mask (a square body and a 3-pixel
+    ring of its prior's spill, 12 frames): where the ring looked different from its background
+    in a third of the frames (something passed there), it goes in the frames it shows the
+    scene; a scene-coloured region the mask encloses stays; a ring that showed its background
+    in every frame the prior claimed it is taken for a still part of the subject (its own
+    ghost) and stays; and with ``scene_trim`` off, or a contrast above a third, nothing goes."""
+    cams, frames, _, _ = moving
+    T = 12
+    body = np.zeros((40, 40), bool)
+    body[10:30, 10:30] = True
+    mask = dilate_mask(body, 3)
+    ring, enclosed = mask & ~body, np.zeros_like(body)
+    enclosed[16:24, 16:24] = True
+    masks = [np.repeat(mask[None], T, axis=0)]
+    still = [np.repeat((ring | enclosed)[None], T, axis=0)]
+    passed = [still[0].copy()]
+    passed[0][:4] = enclosed  # frames 0-3: something passed over the ring, it looked different
+
+    def trimmed(scene, **params):
+        est = SequenceForeground(frames, cams, params=ForegroundParams(**params),
+                                 rng=np.random.default_rng(1))
+        return est.with_prior(masks, masks, scene)[0]
+
+    out = trimmed(passed, scene_trim=True)
+    assert np.array_equal(out[4:], np.repeat((mask & ~ring)[None], T - 4, axis=0))
+    assert np.array_equal(out[:4], masks[0][:4])
+    assert out[:, enclosed].all()
+    assert np.array_equal(trimmed(still, scene_trim=True), masks[0])
+    assert np.array_equal(trimmed(passed), masks[0])  # off by default
+    assert np.array_equal(trimmed(passed, scene_trim=True, scene_contrast=0.5), masks[0])
 
 
 def test_outside_reaching_keeps_components_that_touch_the_outside():
@@ -464,6 +473,8 @@ def test_helpers_and_errors():
         ForegroundParams(ghost_gap=-0.1)
     with pytest.raises(ValueError, match="ForegroundParams.prior_margin"):
         ForegroundParams(prior_margin=-1)
+    with pytest.raises(ValueError, match="ForegroundParams.scene_contrast"):
+        ForegroundParams(scene_contrast=2.0)
 
 
 def _pose2sim_cameras(folder, sizes):

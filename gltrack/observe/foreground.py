@@ -499,15 +499,21 @@ class ForegroundParams:
     scene_trim : bool
         Drop the pixels of the prior's masks that show the scene as observed (the frame
         within ``threshold`` of a background seen in at least ``min_observed`` of the frames)
-        where they reach the mask's outside (:meth:`SequenceForeground.with_prior`): the
-        segmentation's 256-pixel logits fill a body's concavities. Off by default (``gltrack
-        ingest --scene-trim``): a still part of the subject that the prior misses in some
-        frames becomes the background there (the subject's own ghost) and matches it. Measured
-        (docs/measurements.md): on the Pose2Sim take, where the subject moves, 4-5 % of the
-        masks go and the track's IoU rises in two cameras of four; on the seated caliscope
-        take the frontal camera loses a quarter of its masks (the still lower torso). Asking
-        for the background to be seen in half the frames kept the torso but also the
-        concavities.
+        where they reach the mask's outside (:meth:`SequenceForeground.with_prior`), at
+        pixels that looked different in at least ``scene_contrast`` of the frames the prior
+        claimed them: the segmentation's 256-pixel logits fill a body's concavities. Off by
+        default (``gltrack ingest --scene-trim``). Measured (docs/measurements.md): on the
+        Pose2Sim take, where the subject moves, 4-5 % of the masks go and the track's IoU
+        rises in two cameras of four; without the contrast test the seated caliscope take's
+        frontal camera lost a quarter of its masks (the still lower torso, which the
+        segmentation misses in some frames: the background there is the person's ghost).
+        Asking instead for the background to be seen in half the frames kept the torso but
+        also the concavities.
+    scene_contrast : float
+        The share of the prior's frames that must have differed from the background for
+        ``scene_trim`` to trust it (:meth:`SequenceForeground.contrasted`); a quarter, as
+        ``ghost_recurrence``: a part would have to rest on the pixel for three quarters of the
+        frames it is there to look like its own background.
     support_reach : float, metres
         Half the width of the support column (cue ``"support"``, :func:`support_column`) under
         the hull's centroid: in static balance the centre of mass is above the support, and a
@@ -553,6 +559,7 @@ class ForegroundParams:
     ghost_gap: float = 0.05
     prior_margin: int = 2
     scene_trim: bool = False
+    scene_contrast: float = 0.25
 
     def __post_init__(self):
         if int(self.work_size) < 32:
@@ -567,6 +574,9 @@ class ForegroundParams:
         if not 0 <= self.min_observed < 1:
             raise ValueError(f"ForegroundParams.min_observed must be in [0, 1), got "
                              f"{self.min_observed}")
+        if not 0 <= self.scene_contrast <= 1:
+            raise ValueError(f"ForegroundParams.scene_contrast must be in [0, 1], got "
+                             f"{self.scene_contrast}")
         if not self.body_margin >= 0:
             raise ValueError(f"ForegroundParams.body_margin must be >= 0, got {self.body_margin}")
         if int(self.prior_margin) < 0:
@@ -1383,11 +1393,24 @@ class SequenceForeground:
         trim = scene is not None and self.params.scene_trim
         out = [m.copy() for m in masks]
         for c, (m, u) in enumerate(zip(masks, used)):
+            if trim:
+                trusted = self.contrasted(u, scene[c])
             for t in np.flatnonzero(u.any(axis=(1, 2))):
                 out[c][t] = (m[t] & dilate_mask(u[t], r)) | u[t]
                 if trim:
-                    out[c][t] &= ~outside_reaching(out[c][t] & scene[c][t], out[c][t])
+                    out[c][t] &= ~outside_reaching(out[c][t] & scene[c][t] & trusted,
+                                                   out[c][t])
         return out
+
+    def contrasted(self, claimed, scene):
+        """(h, w) bool: pixels whose background ``scene_trim`` may trust: in at least
+        ``scene_contrast`` of the frames the prior ``claimed`` (T, h, w) them, the frame did
+        not show the ``scene`` (T, h, w) there. A still part of the subject that the prior
+        misses in some frames becomes the background (its own ghost) and then matches it
+        whenever it is claimed; where the subject did pass, it looked different."""
+        n = claimed.sum(axis=0)
+        differs = (claimed & ~scene).sum(axis=0)
+        return (n > 0) & (differs >= self.params.scene_contrast * n)
 
     def _dilate_stack(self, stack):
         return np.stack([dilate_mask(m, self.params.exclude_margin) for m in stack])
