@@ -54,10 +54,10 @@ def add_arguments(p):
     p.add_argument("--scene-trim", action="store_true",
                    help="trim the person segmentation's masks where they show the scene seen "
                         "in the other frames and reach the mask's edge (the segmentation fills "
-                        "a body's concavities, e.g. between a hanging arm and the trunk): for "
-                        "a subject that moves about; off by default, since a still part that "
-                        "the segmentation misses in some frames (a seated person's torso) "
-                        "looks like the scene")
+                        "a body's concavities, e.g. between a hanging arm and the trunk), "
+                        "where the person, when there, looked different from that scene; off "
+                        "by default (measured: a small gain on a take whose subject moves "
+                        "about, a small loss on a seated one)")
     p.add_argument("--keypoints", default="auto", metavar="auto|none|MODEL",
                    help="auto: find each camera's body landmarks (MediaPipe's pose landmark "
                         "model, which scripts/setup.sh installs) and triangulate them into "

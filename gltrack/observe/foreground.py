@@ -503,8 +503,8 @@ class ForegroundParams:
         pixels that looked different in at least ``scene_contrast`` of the frames the prior
         claimed them: the segmentation's 256-pixel logits fill a body's concavities. Off by
         default (``gltrack ingest --scene-trim``). Measured (docs/measurements.md): on the
-        Pose2Sim take 3.5-4.9 % of the masks go and the track's IoU stays within 0.012 of the
-        default's per camera (the seated caliscope take: 0.003-0.018 under it); without the
+        Pose2Sim take 3.5-4.9 % of the masks go and the track's IoU moves by -0.006 to +0.017
+        per camera (the seated caliscope take: 0.003-0.018 under the default); without the
         contrast test the trim raised the Pose2Sim IoU in two cameras but took a quarter of
         the caliscope frontal camera's masks (the still lower torso, which the segmentation
         misses in some frames: the background there is the person's ghost). Asking instead
@@ -1373,8 +1373,8 @@ class SequenceForeground:
         keeps the cues' mask.
 
         With ``scene`` (and ``params.scene_trim``) the pixels of that union that show the
-        scene as observed are then dropped where they reach the mask's outside
-        (:func:`outside_reaching`): the prior's coarse logits fill the concavities of a body
+        scene as observed, where :meth:`contrasted` trusts the background, are then dropped
+        where they reach the mask's outside (:func:`outside_reaching`): the prior's coarse logits fill the concavities of a body
         (the gap between a hanging arm and the trunk, between the legs), whose background
         the other frames show. A scene-coloured region enclosed by the mask (dark shorts in
         front of a dark chair) stays, as filling such holes is what the prior is for.
