@@ -380,6 +380,7 @@ def test_scene_trim_drops_a_coarse_prior_s_spill():
     default = estimate_foreground(frames, cams, rng=np.random.default_rng(1),
                                   person_prior=coarse)
     assert all(np.array_equal(a, b) for a, b in zip(default.masks, runs[False].masks))
+    assert "scene" not in default.stages  # the stack is kept only for the trim
     # per camera: the masks' pixels beyond the prior margin, over the truth's
     spill = {trim: np.array([np.mean([np.mean(m & ~dilate_mask(g, r + 1)) / np.mean(g)
                                       for m, g in zip(ms, gs)])

@@ -602,8 +602,8 @@ class ForegroundResult:
     known : list (C) of (h, w) bool, background observed (not inpainted)
     stages : dict, name -> list (C) of (T, h, w) bool masks of the last pass after each cue:
         ``"candidate"`` (temporal background, with shadows removed when that cue is on),
-        ``"scene"`` (where the frame shows the background as observed: known there and no
-        candidate, shadows and ghosts included), ``"hull"`` (multi-view consistent
+        with ``scene_trim`` ``"scene"`` (where the frame shows the background as observed:
+        known there and no candidate, shadows and ghosts included), ``"hull"`` (multi-view consistent
         candidate), ``"grabcut"`` (refined, before the final shadow veto),
         ``"hull_silhouette"`` (reprojection of the hull's main component), and with the
         support cue ``"support_column"`` (the column's reprojection) and ``"support"`` (the
@@ -1172,8 +1172,9 @@ class SequenceForeground:
             var = self.noise_var(c, bgy, spread, known)
             cs, cr, sh = self.candidates(c, bg, var, "shadows" in cues)
             # where the frame shows the scene as observed: no change from a background seen
-            # in enough frames (before the ghost test, which finds more scene among changes)
-            scene = known[None] & ~cr
+            # in enough frames (before the ghost test, which finds more scene among changes);
+            # kept only for the trim (a stack of the whole take per camera)
+            scene = known[None] & ~cr if p.scene_trim else None
             ghost = None
             if "ghosts" in cues:
                 ghost = self.ghosts(c, cr, var)
@@ -1184,7 +1185,9 @@ class SequenceForeground:
 
         bgs, knowns, cand, raw, shadow, ghosts, scene = (list(x) for x in zip(
             *self.per_camera(background_and_candidates)))
-        stages = {"candidate": cand, "scene": scene}
+        stages = {"candidate": cand}
+        if p.scene_trim:
+            stages["scene"] = scene
         if "ghosts" in cues:
             stages["ghost"] = ghosts
         if "hull" not in cues and "grabcut" not in cues:
@@ -1321,7 +1324,7 @@ class SequenceForeground:
             use = cues if k + 1 == passes else [q for q in cues if q != "grabcut"]
             masks, stages, bgs, knowns = self.run_pass(exclude, use, given)
             if prior is not None:
-                masks = self.with_prior(masks, prior, stages["scene"])
+                masks = self.with_prior(masks, prior, stages.get("scene"))
                 stages["prior"] = prior
             log.debug("foreground pass %d: fractions %s", k,
                       [round(float(m.mean()), 4) for m in masks])
