@@ -70,8 +70,9 @@ on their own (``cues=``):
    (docs/measurements.md): the GrabCut spill onto the skin-coloured cupboards goes and the
    still torso's holes fill. The segmentation is coarse (256-pixel logits) and fills the
    body's concavities too; with ``scene_trim`` (off by default) a region of the prior's masks
-   that shows the scene as observed (stage ``"scene"``) and reaches the mask's outside goes,
-   an enclosed one stays.
+   that shows the scene as observed (stage ``"scene"``), where the subject looked different
+   from it when there (``scene_contrast``), and reaches the mask's outside goes; an enclosed
+   one stays.
 
 ``passes`` (default 2) repeats the chain (GrabCut in the last pass only) with the previous pass's
 masks (dilated) added to the person masks, so the background estimate no longer averages the subject in; a tracker can
