@@ -107,6 +107,40 @@ def test_blob_evidence_scores_the_truth_best_and_times_stages(setup):
             far.costs(test[:1])
 
 
+def test_the_next_frame_reconstructed_ahead_is_the_same_evidence(setup, tmp_path):
+    """set_frame reconstructs the next frame on a worker thread: stepping in order, jumping
+    and starting afresh give the same voxels, points and point colours (the colour
+    segmentation goes the same way: its carve is the worker's other branch); a next frame
+    that cannot be read does not break the current one and raises, naming its file, when it
+    is asked for."""
+    import shutil
+
+    root, body, *_ = setup
+    with Dataset.open(root / "ds") as ds:
+        ev = BlobEvidence(ds, body, max_depth=2)
+        seen = {}
+        for f in (0, 1, 2, 5, 6, 3, 15):
+            ev.set_frame(f)
+            # under way for the next frame (none after the last)
+            assert (ev._ahead is None) if f == N_FRAMES - 1 else ev._ahead[0] == f + 1
+            seen[f] = (ev.voxels.ijk, *ev.points(), ev._colours)
+        for f, want in seen.items():
+            fresh = BlobEvidence(ds, body, max_depth=2)
+            fresh.set_frame(f)  # a first frame is reconstructed on the calling thread
+            got = (fresh.voxels.ijk, *fresh.points(), fresh._colours)
+            assert all(np.array_equal(a, b) for a, b in zip(got, want)), f
+        assert not np.array_equal(seen[0][1], seen[6][1])  # the frames differ
+    bad = tmp_path / "ds"
+    shutil.copytree(root / "ds", bad)
+    (bad / "cam1" / "000004.png").write_bytes(b"not a png")
+    with Dataset.open(bad) as ds:
+        ev = BlobEvidence(ds, body, max_depth=2)
+        ev.set_frame(3)
+        assert not ev.empty and ev._ahead is None
+        with pytest.raises(ValueError, match="000004.png"):
+            ev.set_frame(4)
+
+
 def test_injected_failure_moves_the_estimate(setup, ctx):
     root, body, test, _ = setup
     gt = body.joints(test)

@@ -18,13 +18,16 @@ model only:
 
 Every stage's wall time is accumulated in :attr:`BlobEvidence.seconds` (reset per frame by
 :meth:`BlobEvidence.set_frame`), so the trackers report where time goes. While a frame is
-carved and tracked, the next frame's images and masks are read in a background thread
-(:meth:`gltrack.data.dataset.Dataset.prefetch`).
+fitted and weighed, the next frame is reconstructed on a worker thread, and the one after it
+is read from disk in the background (:meth:`gltrack.data.dataset.Dataset.prefetch`); the
+``voxels`` stage is then the time the tracker waited for its voxels.
 """
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 import numpy as np
@@ -43,6 +46,19 @@ LOST_KL = 25.0
 FIT_FROM = ("predictions", "groundtruth")
 #: timed stages, keys of :attr:`BlobEvidence.seconds`
 STAGES = ("voxels", "blob_fit", "evaluation")
+
+
+_worker_pool = None
+_worker_lock = threading.Lock()
+
+
+def _worker() -> ThreadPoolExecutor:
+    """The thread that reconstructs the next frame (:meth:`BlobEvidence.set_frame`)."""
+    global _worker_pool
+    with _worker_lock:
+        if _worker_pool is None:
+            _worker_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gltrack-voxels")
+        return _worker_pool
 
 
 def default_volume(cameras, floor: float | None = 0.0) -> np.ndarray:
@@ -121,6 +137,7 @@ class BlobEvidence:
         self.observed = None
         self.fit_loglik = -np.inf
         self._points = None
+        self._ahead = None  # (frame, Future of _reconstruct) of the next frame
         self.seconds = dict.fromkeys(STAGES, 0.0)
         if fit_from not in FIT_FROM:
             raise ValueError(f"option fit_from must be one of {FIT_FROM}, got {fit_from!r}")
@@ -177,26 +194,63 @@ class BlobEvidence:
         return carve(self.cameras, [np.asarray(m, bool) for m in masks], self.volume,
                      base=self.base, max_depth=self.max_depth, tolerance=self.tolerance)
 
+    def _read(self, frame):
+        """``frame``'s images (None unless the colour test or the voxels' colours need them)
+        and masks (None with the colour test), read on the calling thread."""
+        cams = range(len(self.cameras))
+        by_colour = self.segmentation == "colour"
+        images = [self.ds.colour(frame, i) for i in cams] \
+            if self.use_colour or by_colour else None
+        masks = None if by_colour else [self.ds.mask(frame, i) for i in cams]
+        return images, masks
+
+    def _reconstruct(self, images, masks):
+        """Voxels, their points (or None) and the points' YUV colours (or None) of one frame's
+        images and masks. Touches no state, so that it can run on the worker thread."""
+        voxels = self._carve_colour(images) if masks is None else self._carve_masks(masks)
+        points = voxels.points(max_size=self.point_size) if len(voxels) else None
+        colours = None
+        if self.use_colour and points is not None:
+            colours = bgr_to_yuv(point_colours(points[0], self.cameras, images))
+        return voxels, points, colours
+
     def set_frame(self, frame: int) -> None:
-        """Reconstruct ``frame``'s voxels (timed as ``voxels``); resets the stage timers."""
+        """Reconstruct ``frame``'s voxels (timed as ``voxels``: the time the caller waits for
+        them); resets the stage timers.
+
+        The next frame is reconstructed on a worker thread while the caller fits and weighs
+        this one (the reconstruction depends on the images alone, and most of its numpy work
+        leaves the GIL to the tracker's): a tracker stepping through the frames in order finds
+        each frame's voxels ready or under way. The result is the same as reconstructing on
+        the calling thread."""
         if self.frame == frame:
             return
         self.seconds = dict.fromkeys(STAGES, 0.0)
         with self._timed("voxels"):
-            # read once: the colour test and the voxels' colours both need the frame's images
-            by_colour = self.segmentation == "colour"
-            cams = range(len(self.cameras))
-            images = [self.ds.colour(frame, i) for i in cams] \
-                if self.use_colour or by_colour else None
-            masks = None if by_colour else [self.ds.mask(frame, i) for i in cams]
-            # the next frame's files are read while this one is carved and tracked
-            self.ds.prefetch(frame + 1, colour=images is not None, masks=masks is not None)
-            self.voxels = self._carve_colour(images) if by_colour else self._carve_masks(masks)
-            self._points = self.voxels.points(max_size=self.point_size) if len(self.voxels) \
-                else None
-            self._colours = None
-            if self.use_colour and self._points is not None:
-                self._colours = bgr_to_yuv(point_colours(self._points[0], self.cameras, images))
+            if self.segmentation == "colour":
+                self._background_models()  # fitted once, here: the worker only reads them
+            ahead, self._ahead = self._ahead, None
+            if ahead is not None and ahead[0] == frame:
+                result = ahead[1].result()
+            else:  # a jump: what is under way is for another frame
+                if ahead is not None:
+                    ahead[1].cancel()
+                result = self._reconstruct(*self._read(frame))
+            self.voxels, self._points, self._colours = result
+            nxt = frame + 1
+            if nxt < self.ds.frames:
+                # read here (the dataset is not shared with the worker): its files were
+                # prefetched a frame ago, so this costs no decoding. A file that cannot be
+                # read is left to raise when its frame is asked for, after this one is done.
+                try:
+                    data = self._read(nxt)
+                except (OSError, ValueError):
+                    data = None
+                if data is not None:
+                    self._ahead = (nxt, _worker().submit(self._reconstruct, *data))
+                by_colour = self.segmentation == "colour"
+                self.ds.prefetch(nxt + 1, colour=self.use_colour or by_colour,
+                                 masks=not by_colour)
         self.frame, self.observed, self.fit_loglik = frame, None, -np.inf
         if self._points is None:
             log.warning("frame %d: no voxels reconstructed inside the tracking volume %s",
