@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from gltrack.body.dofs import make_dofs
 from gltrack.body.skeleton import default_skeleton
@@ -361,6 +362,17 @@ def _restart(tracker, make, frame: int, frames, hooks):
     return kept, decided
 
 
+#: BLAS threads while tracking. gltrack's matrix products are small (a few thousand rows by 10
+#: or 15 columns: blob fits, rankings, skinning), where OpenBLAS's threads cost more in
+#: hand-off than they save, and they spin on the cores that the next frame's reconstruction
+#: (a worker thread, :meth:`BlobEvidence.set_frame
+#: <gltrack.observe.blob_evidence.BlobEvidence.set_frame>`) and the GL engine's worker
+#: processes need. bench vlmm's loop on a 2-core VM: 19.7 -> 25.3 frames/s with the
+#: chi-square segmentation; bench depth --quick unchanged (hc+ep 4.97-6.74 against 5.11-6.59)
+TRACK_BLAS_THREADS = 1
+
+
+@threadpool_limits.wrap(limits=TRACK_BLAS_THREADS, user_api="blas")
 def track(dataset_path, method: str, out, *, options: dict | None = None, init: str = "auto",
           resume: bool = False, overwrite: bool = False, frames: tuple | None = None,
           preset: str | None = None, seed: int = 0, progress: bool = True, ctx=None,
