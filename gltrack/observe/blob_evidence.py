@@ -219,15 +219,17 @@ class BlobEvidence:
         them); resets the stage timers.
 
         The next frame is reconstructed on a worker thread while the caller fits and weighs
-        this one (the reconstruction depends on the images alone, and most of its numpy work
-        leaves the GIL to the tracker's): a tracker stepping through the frames in order finds
-        each frame's voxels ready or under way. The result is the same as reconstructing on
-        the calling thread."""
+        this one (the reconstruction depends on the images alone; it runs beside the tracker
+        where numpy releases the GIL, and the tracker's BLAS keeps to one thread, see
+        :data:`gltrack.track.runner.TRACK_BLAS_THREADS`): a tracker stepping through the
+        frames in order finds each frame's voxels ready or under way. The result is the same
+        as reconstructing on the calling thread."""
         if self.frame == frame:
             return
         self.seconds = dict.fromkeys(STAGES, 0.0)
+        by_colour = self.segmentation == "colour"
         with self._timed("voxels"):
-            if self.segmentation == "colour":
+            if by_colour:
                 self._background_models()  # fitted once, here: the worker only reads them
             ahead, self._ahead = self._ahead, None
             if ahead is not None and ahead[0] == frame:
@@ -248,7 +250,6 @@ class BlobEvidence:
                     data = None
                 if data is not None:
                     self._ahead = (nxt, _worker().submit(self._reconstruct, *data))
-                by_colour = self.segmentation == "colour"
                 self.ds.prefetch(nxt + 1, colour=self.use_colour or by_colour,
                                  masks=not by_colour)
         self.frame, self.observed, self.fit_loglik = frame, None, -np.inf
