@@ -2,10 +2,10 @@
 from gltrack.bench.vlmm import _summary, _vlmm_targets, format_table
 
 
-def _row(method, rms, seed, fps=2.0, turned=0.0):
+def _row(method, rms, seed, fps=2.0, turned=0.0, joints=None):
     return {"method": method, "seed": seed, "init": "groundtruth", "options": {},
             "rms_joint_error_m": rms, "mean_joint_error_mm": 900 * rms,
-            "frac_turned_round": turned,
+            "frac_turned_round": turned, "joint_error_mm": joints or {},
             "evaluations_per_frame": 200.0, "fps": fps, "rms_over_time_m": [rms],
             "stage_seconds_per_frame": {"voxels": 0.1, "blob_fit": 0.05,
                                         "particle_filter": 0.02}}
@@ -81,6 +81,7 @@ def test_honest_protocol_targets_and_table():
     assert "turned 90 deg): under 100 mm after 4 frames" in text
     assert "honest vlmm RMS <= 100 mm: False (120 mm)" in text
     assert "vlmm_1000: body estimate" in text and "condensation_5000: body" not in text
+    assert "ablation" not in text  # no true-body run: no line
     honest["wrong_start"]["frames_to_recover"] = 20
     assert _vlmm_targets(res, quick=False)["honest_wrong_start_within_15"] is False
     honest["wrong_start"]["frames_to_recover"] = None
@@ -109,3 +110,32 @@ def test_test_take_swaps_with_the_default_clip(tmp_path):
         test_take_path(tmp_path, "cmu_60_")
     with pytest.raises(ValueError, match="--frames 1: must be at least 2"):
         bench_vlmm(shared=tmp_path, frames=1)
+
+
+def test_honest_true_body_ablation_is_reported_and_never_a_target():
+    """The honest VLMM run again with the dataset's true body: the table says what the body
+    estimate costs and on which joints (per-joint means averaged over the seeds); the target
+    still reads the estimated body's run."""
+    est = {"pelvis": 70.0, "l_wrist": 190.0, "r_wrist": 160.0, "l_knee": 80.0}
+    true = {"pelvis": 55.0, "l_wrist": 120.0, "r_wrist": 140.0, "l_knee": 79.0}
+    run = _summary([_row("vlmm", 0.125, 0, joints=est),
+                    _row("vlmm", 0.123, 1, joints={**est, "l_wrist": 200.0})])
+    assert abs(run["joint_error_mm"]["l_wrist"] - 195.0) < 1e-9
+    tb = {"run": "vlmm_1000", **_summary([_row("vlmm", 0.094, 0, joints=true)])}
+    honest = {"subject": "meshes/m.glb", "runs": {"vlmm_1000": run}, "true_body": tb}
+    res = {"machine": "m", "clip": "c.bvh", "train_takes": ["a"], "fps": 30.0,
+           "train_frames": 100, "test_frames": 20, "test_first_frame": 0,
+           "test_take_frames": 50, "seeds": 2, "learn_seconds": 1.0,
+           "model": {"n_clusters": 9, "n_states": 45, "train_entropy": 1.0,
+                     "heldout_entropy": 1.2},
+           "entropy_vs_memory": [], "protocol1": {}, "protocol2": {}, "recovery": {},
+           "honest": honest}
+    t = res["targets"] = _vlmm_targets(res, quick=False)
+    assert abs(t["honest_vlmm_rms_m"] - 0.124) < 1e-12 and t["honest_vlmm_rms_met"] is False
+    text = format_table(res)
+    line = next(ln for ln in text.splitlines() if ln.startswith("ablation, vlmm_1000"))
+    assert "RMS 94.0 mm" in line and "the body estimate costs +30.0 mm" in line
+    # the joints ordered by what the estimate loses: the left wrist (+75), pelvis (+15) ...
+    joints = text.splitlines()[text.splitlines().index(line) + 1]
+    assert joints.index("l_wrist 195 / 120") < joints.index("r_wrist 160 / 140") \
+        < joints.index("pelvis 70 / 55") < joints.index("l_knee 80 / 79")

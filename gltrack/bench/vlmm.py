@@ -21,7 +21,8 @@ with the sensor simulator (four colour cameras, cluttered room, MOG2 masks). Rep
   (:func:`gltrack.bench.faults.set_fault`) and the frames until the RMS joint error is back
   under :data:`RECOVERED_M` are counted (``vlmm`` recovers by itself; ``condensation`` has no
   recovery); the same with the set turned round (:data:`FAIL_TURNED_ROUND`), reported beside
-  it; then the honest protocol (:data:`HONEST_RUNS`).
+  it; then the honest protocol (:data:`HONEST_RUNS`), and its VLMM run again with the true
+  body (a labelled ablation: what the body estimate costs, joint by joint).
 
 Frames per second and the time of each stage (voxels at depth 7, blob fit, particle filter) are
 reported for every run. ``--quick`` uses 20 frames, one seed and smaller particle counts (not
@@ -183,15 +184,22 @@ TARGET_RECOVERY = 30
 TARGET_FPS = 10.0
 
 
-def rms_joint_error(res, gt) -> np.ndarray:
-    """(N,) root-mean-square joint position error of each result frame, metres (the joints of
-    :data:`gltrack.eval.metrics.EVAL_JOINTS` present on both sides)."""
+def joint_errors(res, gt) -> tuple[list, np.ndarray]:
+    """The joints of :data:`gltrack.eval.metrics.EVAL_JOINTS` present on both sides, and their
+    (N, J) position errors in each result frame, metres."""
     from gltrack.eval.metrics import EVAL_JOINTS, common_names
 
-    _, ip, ig = common_names(res["joint_names"], gt["joint_names"], EVAL_JOINTS)
+    names, ip, ig = common_names(res["joint_names"], gt["joint_names"], EVAL_JOINTS)
     frame = np.asarray(res.get("frame", np.arange(len(res["joints"]))), dtype=np.int64)
     d = np.asarray(res["joints"])[:, ip] - np.asarray(gt["joints"])[frame][:, ig]
-    return np.sqrt(np.mean(np.sum(d * d, axis=-1), axis=1))
+    return names, np.linalg.norm(d, axis=-1)
+
+
+def rms_joint_error(res, gt) -> np.ndarray:
+    """(N,) root-mean-square joint position error of each result frame, metres (the joints of
+    :func:`joint_errors`)."""
+    _, e = joint_errors(res, gt)
+    return np.sqrt(np.mean(e * e, axis=1))
 
 
 def _track_run(ds, method, opts, out, seed, hooks=(), init="groundtruth", body="dataset",
@@ -215,6 +223,7 @@ def _track_run(ds, method, opts, out, seed, hooks=(), init="groundtruth", body="
         gt = d.groundtruth()
     m = evaluate(res, gt)
     rms = rms_joint_error(res, gt)
+    names, err = joint_errors(res, gt)
     frames = int(timing["frames"])
     row = {"method": method, "seed": int(seed), "init": str(init), "body": body,
            "options": {k: v for k, v in opts.items() if k != "model"},
@@ -226,7 +235,9 @@ def _track_run(ds, method, opts, out, seed, hooks=(), init="groundtruth", body="
            "frac_turned_round": float(m["frac_turned_round"]),
            "evaluations_per_frame": timing["evaluations"] / max(frames, 1),
            "fps": float(timing.get("fps") or frames / max(wall, 1e-9)),
-           "rms_over_time_m": [round(float(e), 4) for e in rms]}
+           "rms_over_time_m": [round(float(e), 4) for e in rms],
+           # mean over the frames per joint: where one run loses against another
+           "joint_error_mm": {n: round(1000.0 * float(v), 1) for n, v in zip(names, err.mean(0))}}
     stages = timing.get("stage_seconds")
     if stages:
         row["stage_seconds_per_frame"] = {k: v / max(frames, 1) for k, v in stages.items()}
@@ -289,6 +300,9 @@ def _summary(rows: list) -> dict:
                 k: float(np.mean([r.get("stage_seconds_per_frame", {}).get(k, 0.0)
                                   for r in rows]))
                 for k in ("voxels", "blob_fit", "particle_filter")},
+            "joint_error_mm": {n: float(np.mean([r["joint_error_mm"][n] for r in rows]))
+                               for n in rows[0].get("joint_error_mm", {})
+                               if all(n in r.get("joint_error_mm", {}) for r in rows)},
             "rms_over_time_m": rows[0]["rms_over_time_m"], "runs": rows}
 
 
@@ -436,9 +450,11 @@ def bench_vlmm(quick: bool = False, seed: int = 0, shared=None, frames: int | No
 def _bench_honest(root, test, sk, dofs, fps, tmp, seed, seeds, runs, opts_of, only) -> dict:
     """The honest protocol: ``runs`` (protocol 2's blob fit from the predictions) on ``test``
     drawn with :data:`gltrack.bench.protocols.SUBJECT_MESH`, each with the estimated body and
-    the automatic start; then the first run from the true first pose turned by
-    :data:`WRONG_START_RAD` (a pose file, checked against the automatic start as a user's
-    would be). Returns {"runs": {label: summary + body_error}, "wrong_start": {...}}.
+    the automatic start; then the first run again with the dataset's true body (a labelled
+    ablation, never a target: how much of the loss is the body estimate's, joint by joint);
+    then the first run from the true first pose turned by :data:`WRONG_START_RAD` (a pose
+    file, checked against the automatic start as a user's would be). Returns {"runs": {label:
+    summary + body_error}, "true_body": {"run": label, **summary}, "wrong_start": {...}}.
 
     Raises
     ------
@@ -455,24 +471,30 @@ def _bench_honest(root, test, sk, dofs, fps, tmp, seed, seeds, runs, opts_of, on
                                   seed=seed, progress=False, overwrite=True, lod=0,
                                   subject=str(subject))
     res = {"subject": HONEST.subject, "runs": {}}
-    for label, method, opts in runs:
-        if only is not None and label not in only:
-            continue
+
+    def seeds_of(label, method, opts, body):
         rows = []
         for s in range(seed, seed + seeds):
-            out = tmp / f"honest_{label}_{s}"
+            out = tmp / f"honest_{label}_{body}_{s}"
             # the behaviour model's DOF preset, as protocols 1 and 2 track with (the estimated
             # body's default is the full preset): only the body, start and subject differ
             row, _ = _track_run(ds, method, opts_of(method, opts, "predictions"), out, s,
-                                init=HONEST.init, body=HONEST.body, preset=dofs.preset)
+                                init=HONEST.init, body=body, preset=dofs.preset)
             row["body_error"] = body_error_of(out, ds)
             rows.append(row)
-            log.info("honest %s seed %d: RMS %.1f mm", label, s,
+            log.info("honest %s, body %s, seed %d: RMS %.1f mm", label, body, s,
                      1000 * row["rms_joint_error_m"])
-        res["runs"][label] = dict(_summary(rows), body_error=rows[0]["body_error"])
+        return dict(_summary(rows), body_error=rows[0]["body_error"])
+
+    for label, method, opts in runs:
+        if only is None or label in only:
+            res["runs"][label] = seeds_of(label, method, opts, HONEST.body)
     if not res["runs"]:
         return res
     label, method, opts = next(r for r in runs if r[0] in res["runs"])
+    # an ablation (labelled, never a target): the same run with the dataset's true body, so
+    # the table says how much of the honest protocol's loss is the body estimate's
+    res["true_body"] = {"run": label, **seeds_of(label, method, opts, "dataset")}
     x0 = np.array(test[0], dtype=np.float64)
     x0[dofs.index("pelvis_ry")] += WRONG_START_RAD
     pose = tmp / "honest_wrong_start.npy"
@@ -546,6 +568,27 @@ def _table_rows(tab: dict) -> list:
     return lines
 
 
+def _true_body_lines(honest: dict, worst: int = 5) -> list:
+    """The honest section's true-body ablation (``honest["true_body"]``): its RMS against the
+    estimated body's, and the joints where the estimate loses most (mean error, mm)."""
+    tb = honest.get("true_body")
+    run = (honest.get("runs") or {}).get((tb or {}).get("run"))
+    if not tb or not run:
+        return []
+    lines = [f"ablation, {tb['run']} with the dataset's true body (an oracle; subject and start "
+             f"as above): RMS {1000 * tb['rms_joint_error_m']:.1f} mm +- "
+             f"{1000 * tb['rms_joint_error_std_m']:.1f}, turned {tb['frac_turned_round']:.2f}: "
+             f"the body estimate costs "
+             f"{1000 * (run['rms_joint_error_m'] - tb['rms_joint_error_m']):+.1f} mm"]
+    est, true = run.get("joint_error_mm") or {}, tb.get("joint_error_mm") or {}
+    diff = {n: est[n] - true[n] for n in est if n in true}
+    if diff:
+        top = sorted(diff, key=lambda n: -diff[n])[:worst]
+        lines.append("  mean joint error, estimated body against true body: "
+                     + ", ".join(f"{n} {est[n]:.0f} / {true[n]:.0f}" for n in top))
+    return lines
+
+
 def format_table(res: dict) -> str:
     """The bench's figures as text tables (one per protocol)."""
     from gltrack.eval.report import body_error_text
@@ -573,6 +616,7 @@ def format_table(res: dict) -> str:
         for label, r in honest["runs"].items():
             if r.get("body_error"):
                 lines.append(f"{label}: body estimate {body_error_text(r['body_error'])}")
+        lines += _true_body_lines(honest)
         w = honest.get("wrong_start")
         if w:
             n = w["frames_to_recover"]
