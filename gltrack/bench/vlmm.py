@@ -222,8 +222,8 @@ def _track_run(ds, method, opts, out, seed, hooks=(), init="groundtruth", body="
     with Dataset.open(ds) as d:
         gt = d.groundtruth()
     m = evaluate(res, gt)
-    rms = rms_joint_error(res, gt)
     names, err = joint_errors(res, gt)
+    rms = np.sqrt(np.mean(err * err, axis=1))  # as rms_joint_error
     frames = int(timing["frames"])
     row = {"method": method, "seed": int(seed), "init": str(init), "body": body,
            "options": {k: v for k, v in opts.items() if k != "model"},
