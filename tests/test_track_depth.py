@@ -338,6 +338,55 @@ def test_a_tie_between_twins_goes_to_the_one_walking_forwards():
     assert _decide([Walker(np.pi, 0.0, 100.0), Walker(0.0, 0.0, 100.5)], range(10), [])[0] == 0
 
 
+def test_a_tie_goes_to_the_twin_that_bends_its_knees():
+    """Two tied hypotheses, one holding its knees straight against their extension limit (what
+    a body turned round does when the person's knees are bent): the one that bends them is kept,
+    even against the incumbent, and the verdict records both shares; a clear score difference,
+    knees that both bend, or a body without knee DOFs leave the decision to the other rules."""
+    from gltrack.body.model import BodyModel
+    from gltrack.track.base import FrameEstimate
+    from gltrack.track.runner import KNEES_PINNED, TIE, _decide, _knees_at_limit, _verdict
+
+    def stander(body, knee, score):
+        class Scripted:  # scripted poses and scores; no GL involved
+            def step(self, f):
+                p = np.zeros(body.dofs.size)
+                p[1] = 0.98
+                for i, n in enumerate(body.dofs.names):
+                    if "knee" in n:
+                        p[i] = knee
+                return FrameEstimate(p, score, 1)
+        tr = Scripted()
+        tr.body = body
+        return tr
+
+    body = BodyModel.build()
+    lo = body.dofs.lower[body.dofs.index("l_knee_rx")]
+    tied = 1.0 + 0.5 * TIE
+    straight, bent = lo, 0.5  # at the limit; 29 degrees of flexion
+    assert _decide([stander(body, straight, 1.0), stander(body, bent, tied)], range(4), [],
+                   incumbent=0)[0] == 1
+    assert _decide([stander(body, bent, tied), stander(body, straight, 1.0)], range(4), [])[0] == 0
+    # the score decides when the twins do not tie, and the incumbent when both knees bend
+    assert _decide([stander(body, straight, 1.0), stander(body, bent, 1.0 + 2 * TIE)],
+                   range(4), [])[0] == 0
+    assert _decide([stander(body, 0.3, 1.0), stander(body, bent, tied)], range(4), [],
+                   incumbent=0)[0] == 0
+    runs = [[(stander(body, straight, 1.0).step(f), 0.1) for f in range(4)],
+            [(stander(body, bent, tied).step(f), 0.1) for f in range(4)]]
+    assert _knees_at_limit(body, runs[0]) == 1.0 and _knees_at_limit(body, runs[1]) == 0.0
+    assert KNEES_PINNED < 1.0
+    trackers = [stander(body, straight, 1.0), stander(body, bent, tied)]
+    assert _verdict(trackers, runs, 1)["knees_at_limit"] == [1.0, 0.0]
+    # a body seen from the waist up has no knees to tell by: the incumbent stays
+    upper = BodyModel.build(preset="upper")
+    assert _knees_at_limit(upper, [(stander(upper, 0.0, 1.0).step(0), 0.1)]) is None
+    assert _decide([stander(upper, 0.0, 1.0), stander(upper, 0.0, tied)], range(3), [],
+                   incumbent=0)[0] == 0
+    assert _decide([stander(upper, 0.0, tied), stander(upper, 0.0, 1.0)], range(3), [],
+                   incumbent=0)[0] == 0
+
+
 def test_a_lost_track_is_restarted(tmp_path, caplog):
     """The whole state turned 90 degrees at frame 2 (the tracker lost the body): the frames'
     quality rises over the tracker's lost threshold, the runner re-starts it from its automatic

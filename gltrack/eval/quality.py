@@ -106,7 +106,8 @@ def quality_summary(result, infos: dict, camera_names=None, low: float = IOU_LOW
         ``iou_<camera>``, ``model_on_fg_<camera>``, ``fg_covered_<camera>`` (N,) (NaN where not
         recorded) and ``jitter_mm`` (N,) (NaN at the ends of a run of frames);
         ``start``: the choice between start hypotheses the runner recorded on the first frame
-        (``info["start"]``: ``means``, ``kept``, ``uncertain``, ``turned_deg``), or None;
+        (``info["start"]``: ``means``, ``kept``, ``uncertain``, ``turned_deg``,
+        ``knees_at_limit``), or None;
         ``restarts``: one dict per re-start check (``frame``, ``restarted``, ``uncertain``);
         ``keypoint_median_mm``, ``keypoint_mean_mm``, ``keypoint_frames``: the estimate's
         mean joint distance to the dataset's triangulated keypoints (``info["keypoint_m"]``,
@@ -252,6 +253,10 @@ def _start_lines(start: dict | None, restarts: list) -> list[str]:
         turned = start.get("turned_deg")
         apart = "" if turned is None else \
             "; turned " + ", ".join(f"{t:.0f}" for t in turned) + " deg from the kept one"
+        knees = start.get("knees_at_limit")
+        if knees is not None:
+            apart += "; knees at their extension limit in " + \
+                ", ".join(f"{100 * k:.0f}" for k in knees) + " % of the frames"
         lines.append(f"start: {start.get('hypotheses')} hypotheses tracked {start.get('frames')} "
                      f"frames, mean {start.get('measure')} {means}{apart}; kept "
                      f"{start.get('kept')}")
