@@ -62,6 +62,12 @@ def test_sweep_moves_an_arm_to_the_best_grid_point_and_keeps_a_better_estimate()
     np.testing.assert_allclose(res.delta, res.estimate - x)
     assert res.improved == ("r_shoulder",)
     assert calls == [len(g[2]) + 1 for g in grids] and res.evaluations == sum(calls)
+    # a grid point that wins by less than the margin leaves the estimate as it is
+    gain = np.linalg.norm(x[idx] - target[idx]) - np.linalg.norm(grid[40] - target[idx])
+    calls.clear()
+    assert sweep_limbs(x, weights, grids, margin=gain + 1e-9).improved == ()
+    calls.clear()
+    assert sweep_limbs(x, weights, grids, margin=gain - 1e-3).improved == ("r_shoulder",)
     # an estimate that already weighs most stays as it is
     res = sweep_limbs(target, lambda X: -np.linalg.norm(X - target, axis=1), grids)
     np.testing.assert_array_equal(res.estimate, target)

@@ -136,6 +136,42 @@ def test_auto_init_finds_a_turned_and_shifted_body(tmp_path, ctx, turn, shift):
     assert abs(np.angle(np.exp(1j * (x[yaw] - P[0, yaw])))) < 0.3
 
 
+def test_the_arm_sweep_finds_an_arm_lost_over_the_background(tmp_path, ctx):
+    """An arm the track has flung out over the background (where the depth cost is flat and
+    the prior holds it): the per-frame arm sweep (``arm_sweep``, scored by the depth cost
+    alone) brings it back to the body within a frame and says which arm it moved; without the
+    sweep the climb leaves it out. The sweep touches nothing when the arms are right."""
+    from gltrack.track.depth import DepthOptions, HillClimbDepthTracker
+
+    body, P = make_depth_dataset(tmp_path / "ds", n=3, seed=2)
+    ds = Dataset.open(tmp_path / "ds")
+    d = body.dofs
+    w = body.skeleton.names.index("r_wrist")
+    lost = P[0].copy()
+    lost[d.index("r_shoulder_rz")] = lost[d.index("r_shoulder_ry")] = 0.0  # out sideways
+    assert np.linalg.norm(body.joints(lost[None])[0, w] - body.joints(P[:1])[0, w]) > 0.4
+
+    def track(opts, x0):
+        tr = HillClimbDepthTracker(ds, body, ctx, opts)
+        try:
+            tr.start(0, x0)
+            ests = [tr.step(f) for f in range(3)]
+        finally:
+            tr.close()
+        err = [float(np.linalg.norm(body.joints(e.params[None])[0, w] - body.joints(P[f:f + 1])[0, w]))
+               for f, e in enumerate(ests)]
+        return ests, err
+
+    _, err_off = track(DepthOptions(arm_sweep=0), lost)
+    ests, err_on = track(DepthOptions(), lost)  # on by default
+    assert err_off[-1] > 0.3, err_off  # the climb alone does not bring it back
+    assert max(err_on) < 0.08, err_on
+    assert "r_shoulder" in ests[0].info["swept"]
+    assert ests[0].evaluations > 2 * (4 * DepthOptions().arm_sweep ** 2 + 1)
+    right, _ = track(DepthOptions(), P[0])
+    assert all(e.info["swept"] == [] for e in right), [e.info["swept"] for e in right]
+
+
 def test_auto_start_waits_for_the_person(tmp_path, capsys, caplog):
     """Frames without a person before the subject walks in: the automatic start warns, tries
     the next frames and starts where the person is; a take with no person at all is a one-line

@@ -80,8 +80,9 @@ def limb_grid(dofs, swing: int = 10, flex: int = 4,
     return out
 
 
-def sweep_limbs(x, weights_fn, grids) -> SweepResult:
-    """Replace each limb of ``x`` by its best grid point when that weighs more than ``x``.
+def sweep_limbs(x, weights_fn, grids, margin: float = 0.0) -> SweepResult:
+    """Replace each limb of ``x`` by its best grid point when that weighs more than ``x``
+    (by more than ``margin``).
 
     Parameters
     ----------
@@ -89,6 +90,7 @@ def sweep_limbs(x, weights_fn, grids) -> SweepResult:
     weights_fn : callable, (N, D) poses -> (N,) weights (larger = better); the weights of one
         call must be comparable with each other (they may be normalised per call)
     grids : list from :func:`limb_grid` or :func:`arm_grid`
+    margin : float, >= 0, in the weights' units
 
     Returns
     -------
@@ -104,7 +106,7 @@ def sweep_limbs(x, weights_fn, grids) -> SweepResult:
         w = np.asarray(weights_fn(X), dtype=np.float64)
         evaluations += len(X)
         k = int(np.argmax(w))
-        if k > 0 and w[k] > w[0]:
+        if k > 0 and w[k] > w[0] + margin:
             best = X[k].copy()
             improved.append(joint)
     return SweepResult(best, best - x0, evaluations, tuple(improved))

@@ -242,10 +242,13 @@ class EvidenceDepthTracker(HillClimbDepthTracker):
             speculate=self.opt.stages == "chain",
             screen=self.opt.proposal_screen if self.opt.proposal_screen >= 0 else None)
         self.accepted_total += len(ep.accepted)
-        self._accept(ep.x)
+        x, c, sweep_evals, _, swept, moved = self.sweep(ep.x, float(ep.cost), x_pred)
+        self._accept(x, void=moved)
         info = {"detections": int(len(det.points)), "accepted": [a["part"] for a in ep.accepted],
-                "quality": self.quality_of(ep.x, ep.cost, x_pred)}
-        return FrameEstimate(ep.x, float(ep.cost), evals + int(ep.evaluations), info)
+                "quality": self.quality_of(x, c, x_pred)}
+        if self._limb_grids:
+            info["swept"] = list(swept)
+        return FrameEstimate(x, c, evals + int(ep.evaluations) + sweep_evals, info)
 
 
 class EvidenceOnlyDepthTracker(EvidenceDepthTracker):
